@@ -1,0 +1,56 @@
+"""Shared measuring helpers: medians over repeats, machine description, result tables."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import statistics
+import time
+from typing import Any, Callable
+
+from flightrecon.fileio import write_json
+
+
+def time_call(fn: Callable[[], Any], repeat: int = 5, warmup: int = 1) -> dict:
+    """Run `fn` warmup + repeat times; return median / min / max seconds of the timed runs."""
+    for _ in range(warmup):
+        fn()
+    samples = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        samples.append(time.perf_counter() - t0)
+    return {"median_s": statistics.median(samples), "min_s": min(samples), "max_s": max(samples),
+            "repeat": repeat}
+
+
+def machine() -> dict:
+    import torch
+
+    return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
+            "torch_threads": torch.get_num_threads(), "cuda": torch.cuda.is_available(),
+            "python": platform.python_version(), "torch": torch.__version__}
+
+
+def report(name: str, rows: list[dict], out: str | None = None, extra: dict | None = None) -> dict:
+    """Print rows as a Markdown table and optionally write them, with the machine, as JSON."""
+    result = {"bench": name, "machine": machine(), "rows": rows, **(extra or {})}
+    if rows:
+        keys = list(dict.fromkeys(k for r in rows for k in r))
+        print(f"\n## bench {name}\n")
+        print("| " + " | ".join(keys) + " |")
+        print("|" + "---|" * len(keys))
+        for r in rows:
+            print("| " + " | ".join(_fmt(r.get(k, "")) for k in keys) + " |")
+    for k, v in (extra or {}).items():
+        print(f"{k}: {json.dumps(v) if not isinstance(v, str) else v}")
+    if out:
+        write_json(out, result)
+    return result
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)

@@ -1,0 +1,1 @@
+"""One module per `flightrecon` subcommand; each exposes `register(subparsers)`."""

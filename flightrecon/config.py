@@ -1,0 +1,301 @@
+"""Typed scenario config: one TOML file = scene + drone + camera + planner + mapper + selector + budget.
+
+Every section is a frozen dataclass whose defaults are the paper's values (Table of parameters) or
+the platform's. Loading rejects unknown keys and out-of-range values with a message that names the
+dotted key, so a typo never silently falls back to a default. Overrides (`--set mapper.k_new=30`)
+use the same validation. The resolved config is written with every run (`to_toml`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from flightrecon.errors import ConfigError
+
+SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+
+
+def _f(default: Any, lo: float | None = None, hi: float | None = None, choices: tuple | None = None,
+       doc: str = "") -> Any:
+    """A config field with its valid range (inclusive) or choices, checked on load."""
+    meta = {"lo": lo, "hi": hi, "choices": choices, "doc": doc}
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda: type(default)(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    name: str = _f("office0", doc="procedural scene name, or a label for `path`")
+    path: str = _f("", doc="mesh file of a real scene (Replica mesh.ply, PLY, OBJ, GLB); empty: procedural")
+    seed: int = _f(0, 0, None, doc="seed of the procedural generator")
+    unit_scale: float = _f(1.0, 1e-6, 1e6, doc="multiplies the file's coordinates to get meters")
+    up_axis: str = _f("z", choices=("z", "y"), doc="up axis of the file; y-up files are rotated to z-up")
+    cache_dir: str = _f("", doc="where baked assets are cached; empty: ~/.cache/flightrecon")
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    width: int = _f(640, 1, 8192)
+    height: int = _f(480, 1, 8192)
+    hfov_deg: float = _f(90.0, 1.0, 179.0)
+    near: float = _f(0.05, 1e-4, 10.0, doc="near clip (m)")
+    far: float = _f(10.0, 0.1, 1000.0, doc="depth beyond this is invalid (0)")
+    pitch_deg: float = _f(0.0, -90.0, 90.0, doc="camera pitch on the body, positive looks down")
+
+
+@dataclass(frozen=True)
+class DroneConfig:
+    mass: float = _f(1.2, 0.1, 10.0, doc="kg")
+    arm_length: float = _f(0.17, 0.03, 1.0, doc="rotor distance from the center (m)")
+    inertia: list = _f([0.012, 0.012, 0.022], doc="principal inertia Ixx, Iyy, Izz (kg m^2)")
+    max_motor_thrust: float = _f(8.0, 0.1, 100.0, doc="per-rotor thrust limit (N)")
+    motor_time_constant: float = _f(0.03, 0.0, 1.0, doc="first-order motor lag (s)")
+    yaw_torque_coeff: float = _f(0.016, 0.0, 1.0, doc="rotor reaction torque per newton of thrust (m)")
+    linear_drag: float = _f(0.3, 0.0, 10.0, doc="N per m/s")
+    body_radius: float = _f(0.25, 0.05, 2.0, doc="radius of a sphere enclosing the frame and rotors (m)")
+    max_tilt_deg: float = _f(35.0, 5.0, 80.0)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    physics_dt: float = _f(0.001, 1e-5, 0.01, doc="s")
+    control_rate_hz: float = _f(200.0, 10.0, 2000.0)
+    pose_noise_pos_m: float = _f(0.0, 0.0, 1.0, doc="std of noise added to the pose given to mapping")
+    pose_noise_rot_deg: float = _f(0.0, 0.0, 30.0)
+    takeoff_height: float = _f(1.2, 0.2, 5.0, doc="m above the floor")
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    kp: list = _f([8.0, 8.0, 10.0], doc="position gains (1/s^2)")
+    kv: list = _f([5.0, 5.0, 6.0], doc="velocity gains (1/s)")
+    kr: list = _f([8.0, 8.0, 3.0], doc="attitude gains, scaled by inertia")
+    kw: list = _f([1.5, 1.5, 1.0], doc="angular-rate gains, scaled by inertia")
+    arrive_pos_tol: float = _f(0.05, 1e-4, 1.0, doc="m")
+    arrive_yaw_tol_deg: float = _f(3.0, 0.01, 45.0)
+    arrive_speed_tol: float = _f(0.05, 1e-4, 1.0, doc="m/s")
+    settle_time: float = _f(0.2, 0.0, 5.0, doc="s inside the tolerances before a capture")
+    arrive_timeout: float = _f(5.0, 0.1, 60.0, doc="s after the trajectory ends before giving up")
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    voxel_size: float = _f(0.05, 0.01, 0.5, doc="occupancy voxel (m)")
+    safety_margin: float = _f(0.1, 0.0, 1.0, doc="clearance kept beyond the drone's body radius (m)")
+    max_vel: float = _f(1.0, 0.05, 10.0, doc="m/s per axis")
+    max_acc: float = _f(2.0, 0.05, 20.0, doc="m/s^2 per axis")
+    max_jerk: float = _f(8.0, 0.1, 200.0, doc="m/s^3 per axis")
+    max_yaw_rate_deg: float = _f(90.0, 1.0, 720.0)
+    max_yaw_acc_deg: float = _f(180.0, 1.0, 3600.0)
+    max_duration: float = _f(15.0, 0.5, 300.0, doc="s; longer trajectories are rejected")
+    use_ground_truth: bool = _f(False, doc="plan on the true scene instead of the online occupancy map")
+    library: str = _f("default", doc="'default' (198 candidates) or a path to a TOML candidate list")
+    ompl_time_limit: float = _f(0.05, 0.001, 10.0, doc="s per OMPL query")
+
+
+@dataclass(frozen=True)
+class MapperConfig:
+    gamma: float = _f(0.05, 0.005, 1.0, doc="rejection distance of new splats (m), voxel-hash size")
+    k_new: int = _f(60, 0, 10000)
+    k_replay: int = _f(40, 0, 10000)
+    lambda_depth: float = _f(5.0, 0.0, 1e3)
+    lambda_distortion: float = _f(1.0, 0.0, 1e3)
+    lambda_normal: float = _f(0.05, 0.0, 1e3)
+    ssim_weight: float = _f(0.125, 0.0, 1.0, doc="weight of D-SSIM in the color loss (2DGS-SLAM)")
+    init_subsample: float = _f(0.1, 1e-4, 1.0, doc="share of valid depth pixels that seed splats")
+    init_opacity: float = _f(0.7, 0.01, 0.99)
+    prune_opacity: float = _f(0.0, 0.0, 1.0, doc="drop splats below this opacity after a frame; 0: off")
+    lr_means: float = _f(1e-4, 0.0, 1.0)
+    lr_rotations: float = _f(1e-3, 0.0, 1.0)
+    lr_scales: float = _f(5e-3, 0.0, 1.0)
+    lr_opacities: float = _f(5e-2, 0.0, 1.0)
+    lr_colors: float = _f(2.5e-3, 0.0, 1.0)
+    backend: str = _f("auto", choices=("auto", "cpu", "cuda", "reference"))
+
+
+@dataclass(frozen=True)
+class ReliabilityConfig:
+    w_min: float = _f(0.1, 0.0, 1.0)
+    lambda_L: float = _f(1.0, 1e-6, 1e6)
+    lambda_T: float = _f(1.2, 0.0, 1e6)
+    lambda_rD: float = _f(3.0, 0.0, 1e6)
+    lambda_rNr: float = _f(0.15, 0.0, 1e6)
+    loss_floor: float = _f(1e-4, 1e-12, 1.0, doc="L_j is clamped to at least this before the log")
+    logodds_clamp: float = _f(10.0, 0.1, 1e3, doc="log-odds are kept in [-c, c]")
+
+
+@dataclass(frozen=True)
+class SelectorConfig:
+    method: str = _f("gaussmi2d", doc="view selector: gaussmi2d, gaussmi, fisherrf, activegs, random")
+    scoring_width: int = _f(160, 1, 8192)
+    scoring_height: int = _f(120, 1, 8192)
+    measurement_prior: str = _f("one", choices=("one", "depth_noise"))
+
+
+@dataclass(frozen=True)
+class BudgetConfig:
+    frames: int = _f(200, 1, 100000)
+    initial_views: int = _f(4, 1, 64, doc="views captured by turning in place after take-off")
+    stop_on_reliability: bool = _f(False, doc="stop early when the map is reliable (GauSS-MI's rule)")
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    run_root: str = _f("runs")
+    record: bool = _f(True, doc="write recording.rrd")
+    checkpoint: bool = _f(True)
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    name: str = _f("default")
+    seed: int = _f(0, 0, None)
+    scene: SceneConfig = field(default_factory=SceneConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    drone: DroneConfig = field(default_factory=DroneConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    mapper: MapperConfig = field(default_factory=MapperConfig)
+    reliability: ReliabilityConfig = field(default_factory=ReliabilityConfig)
+    selector: SelectorConfig = field(default_factory=SelectorConfig)
+    budget: BudgetConfig = field(default_factory=BudgetConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+
+
+def _check_value(key: str, value: Any, ftype: Any, meta: dict) -> Any:
+    """Coerce `value` to the field's type and check its range; raise ConfigError naming `key`."""
+    if ftype is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"config key '{key}': expected true or false, got {value!r}")
+    elif ftype is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"config key '{key}': expected an integer, got {value!r}")
+    elif ftype is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"config key '{key}': expected a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"config key '{key}': must be finite, got {value!r}")
+    elif ftype is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"config key '{key}': expected a string, got {value!r}")
+    elif ftype is list:
+        if not isinstance(value, list):
+            raise ConfigError(f"config key '{key}': expected a list, got {value!r}")
+    lo, hi, choices = meta.get("lo"), meta.get("hi"), meta.get("choices")
+    if choices is not None and value not in choices:
+        raise ConfigError(f"config key '{key}': {value!r} is not one of {', '.join(map(str, choices))}")
+    if lo is not None and value < lo:
+        raise ConfigError(f"config key '{key}': {value!r} is below the minimum {lo}")
+    if hi is not None and value > hi:
+        raise ConfigError(f"config key '{key}': {value!r} is above the maximum {hi}")
+    return value
+
+
+def _build(cls: type, data: dict, prefix: str) -> Any:
+    if not isinstance(data, dict):
+        raise ConfigError(f"config key '{prefix.rstrip('.')}': expected a table, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ConfigError(f"unknown config key '{prefix}{unknown[0]}' (valid: {', '.join(sorted(fields))})")
+    kwargs = {}
+    for name, value in data.items():
+        ftype = hints[name]
+        if dataclasses.is_dataclass(ftype):
+            kwargs[name] = _build(ftype, value, f"{prefix}{name}.")
+        else:
+            kwargs[name] = _check_value(prefix + name, value, ftype, dict(fields[name].metadata))
+    return cls(**kwargs)
+
+
+def _merge(base: dict, extra: dict) -> dict:
+    out = dict(base)
+    for k, v in extra.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def parse_override(text: str) -> dict:
+    """Turn 'mapper.k_new=30' into {'mapper': {'k_new': 30}}; the value is a TOML literal or a bare string."""
+    if "=" not in text:
+        raise ConfigError(f"override '{text}': expected KEY=VALUE, e.g. mapper.k_new=30")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    try:
+        value = tomllib.loads(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = raw
+    out: dict = {}
+    node = out
+    parts = key.split(".")
+    for p in parts[:-1]:
+        node = node.setdefault(p, {})
+    node[parts[-1]] = value
+    return out
+
+
+def resolve_scenario_path(name_or_path: str) -> Path:
+    """A scenario is a TOML path, or the name of a file in scenarios/ (without .toml)."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        return p
+    return SCENARIO_DIR / f"{name_or_path}.toml"
+
+
+def load_config(source: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> ScenarioConfig:
+    """Load a scenario TOML (or the defaults when `source` is None), apply overrides, validate."""
+    data: dict = {}
+    if source is not None:
+        path = resolve_scenario_path(str(source))
+        if not path.is_file():
+            raise ConfigError(f"scenario file not found: {path}")
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"scenario file {path} is not valid TOML: {exc}") from None
+        data.setdefault("name", path.stem)
+    for text in overrides:
+        data = _merge(data, parse_override(text))
+    return _build(ScenarioConfig, data, "")
+
+
+def config_from_dict(data: dict) -> ScenarioConfig:
+    """Validate a plain dict (e.g. a run's saved config) into a ScenarioConfig."""
+    return _build(ScenarioConfig, data, "")
+
+
+def to_dict(cfg: Any) -> dict:
+    return dataclasses.asdict(cfg)
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, float):
+        return repr(v)
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    return str(v)
+
+
+def to_toml(cfg: ScenarioConfig) -> str:
+    """Serialize the resolved config; `load_config` of the result gives back an equal config."""
+    d = to_dict(cfg)
+    lines = [f"{k} = {_toml_value(v)}" for k, v in d.items() if not isinstance(v, dict)]
+    for k, v in d.items():
+        if isinstance(v, dict):
+            lines.append(f"\n[{k}]")
+            lines.extend(f"{kk} = {_toml_value(vv)}" for kk, vv in v.items())
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,1 @@
+"""Scenes: mesh loading (Replica PLY, PLY, OBJ, GLB), procedural Replica-format scenes, baking."""
