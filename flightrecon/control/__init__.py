@@ -1,0 +1,1 @@
+"""Quadrotor control: trajectory interface, geometric SE(3) tracking controller, motor mixing."""
