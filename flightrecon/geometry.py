@@ -95,6 +95,18 @@ def opencv_to_mujoco_rotation(R_wc: np.ndarray) -> np.ndarray:
     return R_wc @ R_CV_FROM_MJ
 
 
+def opencv_to_opengl_pose(T_wc: np.ndarray) -> np.ndarray:
+    """Camera-to-world in OpenGL/nerfstudio axes (x right, y up, z back) from OpenCV axes.
+
+    nerfstudio's `transforms.json` stores OpenGL-convention poses; this is its own inverse."""
+    out = np.array(T_wc, float, copy=True)
+    out[..., :3, 1:3] *= -1.0
+    return out
+
+
+opengl_to_opencv_pose = opencv_to_opengl_pose
+
+
 def yaw_of_camera(T_wc: np.ndarray) -> float:
     """Heading of the camera's optical axis projected onto the ground plane."""
     z = T_wc[:3, 2]
