@@ -1,0 +1,60 @@
+"""Scenario config: defaults are the paper's, bad keys and values name the key, round trip is exact."""
+
+from pathlib import Path
+
+import pytest
+
+from flightrecon.config import SCENARIO_DIR, ScenarioConfig, load_config, to_toml
+from flightrecon.errors import ConfigError
+
+
+def test_defaults_are_paper_parameters():
+    cfg = ScenarioConfig()
+    assert (cfg.mapper.gamma, cfg.mapper.k_new, cfg.mapper.k_replay) == (0.05, 60, 40)
+    assert (cfg.mapper.lambda_depth, cfg.mapper.lambda_distortion, cfg.mapper.lambda_normal) == (5.0, 1.0, 0.05)
+    r = cfg.reliability
+    assert (r.w_min, r.lambda_L, r.lambda_T, r.lambda_rD, r.lambda_rNr) == (0.1, 1.0, 1.2, 3.0, 0.15)
+    assert (cfg.camera.width, cfg.camera.height, cfg.camera.hfov_deg) == (640, 480, 90.0)
+
+
+@pytest.mark.parametrize("path", sorted(SCENARIO_DIR.rglob("*.toml")), ids=lambda p: p.stem)
+def test_every_shipped_scenario_loads(path):
+    cfg = load_config(path)
+    assert cfg.name == path.stem
+
+
+def test_unknown_key_names_the_dotted_key(tmp_path: Path):
+    p = tmp_path / "bad.toml"
+    p.write_text("[mapper]\nk_neww = 3\n")
+    with pytest.raises(ConfigError, match=r"mapper\.k_neww"):
+        load_config(p)
+
+
+@pytest.mark.parametrize("override, key", [
+    ("mapper.k_new=-1", "mapper.k_new"),
+    ("camera.hfov_deg=200", "camera.hfov_deg"),
+    ("selector.measurement_prior='x'", "selector.measurement_prior"),
+    ("budget.frames=1.5", "budget.frames"),
+    ("output.record=1", "output.record"),
+    ("scene=3", "scene"),
+])
+def test_invalid_values_name_the_key(override, key):
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        load_config(None, [override])
+
+
+def test_missing_and_corrupt_files(tmp_path: Path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "nope.toml")
+    bad = tmp_path / "corrupt.toml"
+    bad.write_text("[mapper\nk_new = ")
+    with pytest.raises(ConfigError, match="corrupt.toml"):
+        load_config(bad)
+
+
+def test_overrides_and_round_trip(tmp_path: Path):
+    cfg = load_config("demo", ["mapper.k_new=7", "scene.name=office3", "control.kp=[1.0, 2.0, 3.0]"])
+    assert cfg.mapper.k_new == 7 and cfg.scene.name == "office3" and cfg.control.kp == [1.0, 2.0, 3.0]
+    p = tmp_path / "resolved.toml"
+    p.write_text(to_toml(cfg))
+    assert load_config(p) == cfg
