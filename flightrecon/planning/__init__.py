@@ -1,0 +1,1 @@
+"""Planning: viewpoint library, occupancy map, distance field, OMPL paths, ruckig trajectories, feasibility."""
