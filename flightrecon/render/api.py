@@ -1,0 +1,100 @@
+"""`render(...)`: the one functional, batched 2DGS rendering entry point, and backend dispatch."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import torch
+from torch import Tensor
+
+from flightrecon.errors import DataError, FlightReconError
+
+OUTPUTS = ("features", "alpha", "depth", "median_depth", "normal", "normal_world", "distortion")
+BACKENDS = ("auto", "cpu", "cuda", "reference")
+
+
+@dataclass
+class RenderOutput:
+    """Images are [C,H,W,k]; fields not requested are None. radii [C,N] int, 0 = not visible."""
+
+    features: Optional[Tensor] = None
+    alpha: Optional[Tensor] = None
+    depth: Optional[Tensor] = None
+    median_depth: Optional[Tensor] = None
+    normal: Optional[Tensor] = None
+    normal_world: Optional[Tensor] = None
+    distortion: Optional[Tensor] = None
+    radii: Optional[Tensor] = None
+
+
+def resolve_backend(backend: str) -> str:
+    if backend not in BACKENDS:
+        raise FlightReconError(f"render: unknown backend {backend!r} (choose from {', '.join(BACKENDS)})")
+    if backend == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    if backend == "cuda" and not torch.cuda.is_available():
+        raise FlightReconError("render: backend 'cuda' requested but torch sees no CUDA device")
+    return backend
+
+
+def check_inputs(means, quats, log_scales, opacity_logits, features, viewmats, Ks, width, height,
+                 near, far, outputs) -> None:
+    """Shape and value checks: one clear message instead of a crash deep in a kernel."""
+    N = means.shape[0] if means.dim() == 2 else -1
+    C = viewmats.shape[0] if viewmats.dim() == 3 else -1
+    expect = {"means": (means, (N, 3)), "quats": (quats, (N, 4)), "log_scales": (log_scales, (N, 2)),
+              "opacity_logits": (opacity_logits, (N,)), "viewmats": (viewmats, (C, 4, 4)),
+              "Ks": (Ks, (C, 3, 3))}
+    for name, (t, shape) in expect.items():
+        if N < 0 or C < 0 or tuple(t.shape) != shape:
+            raise FlightReconError(f"render: {name} has shape {tuple(t.shape)}, expected {shape} "
+                                   "(N splats, C cameras)")
+    if not ((features.dim() == 2 and features.shape[0] == N)
+            or (features.dim() == 3 and features.shape[:2] == (C, N))):
+        raise FlightReconError(f"render: features has shape {tuple(features.shape)}, expected "
+                               f"[N,D] or [C,N,D] with N={N}, C={C}")
+    if width < 1 or height < 1:
+        raise FlightReconError(f"render: image size {width}x{height} must be at least 1x1")
+    if not (0 < near < far):
+        raise FlightReconError(f"render: need 0 < near < far, got near={near}, far={far}")
+    bad = [o for o in outputs if o not in OUTPUTS]
+    if bad:
+        raise FlightReconError(f"render: unknown outputs {bad} (choose from {', '.join(OUTPUTS)})")
+    expect["features"] = (features, None)
+    for name, (t, _) in expect.items():
+        if t.numel() and not bool(torch.isfinite(t).all()):
+            raise DataError(f"render: {name} contains NaN or inf")
+
+
+def render(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Tensor,
+           features: Tensor, viewmats: Tensor, Ks: Tensor, width: int, height: int,
+           near: float = 0.05, far: float = 10.0,
+           outputs: Sequence[str] = ("features", "alpha", "depth", "median_depth", "normal",
+                                     "distortion"),
+           backend: str = "auto") -> RenderOutput:
+    """Render N 2DGS splats into C cameras (viewmats world-to-camera, OpenCV axes).
+
+    Differentiable w.r.t. means, quats, log_scales, opacity_logits and features ([N,D] shared by
+    all cameras or [C,N,D] per camera). Pixel centers are at (i + 0.5, j + 0.5).
+    """
+    outputs = tuple(outputs)
+    check_inputs(means, quats, log_scales, opacity_logits, features, viewmats, Ks, width, height,
+                 near, far, outputs)
+    name = resolve_backend(backend)
+    if name == "reference":
+        from flightrecon.render.backend_reference import render_reference_backend as fn
+    elif name == "cpu":
+        from flightrecon.render.backend_cpu import render_cpu as fn
+    else:
+        from flightrecon.render.backend_cuda import render_cuda as fn
+    raw = fn(means, quats, log_scales, opacity_logits, features, viewmats, Ks, width, height,
+             near, far, outputs)
+    out = RenderOutput(radii=raw["radii"])
+    for key in OUTPUTS:
+        if key in outputs and key != "normal_world":
+            setattr(out, key, raw[key])
+    if "normal_world" in outputs:
+        # camera-to-world rotation is R^T: n_w = R^T n_c, i.e. row-vector n_c @ R
+        out.normal_world = torch.einsum("chwi,cij->chwj", raw["normal"], viewmats[:, :3, :3])
+    return out
