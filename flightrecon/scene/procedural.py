@@ -21,6 +21,7 @@ from flightrecon.scene.builder import Appearance, QuadMeshBuilder
 from flightrecon.scene.replica_ply import quads_to_triangles
 from flightrecon.scene.types import Scene
 
+GENERATOR_VERSION = 1  # bump when the generator's output changes, so caches regenerate
 SCENE_NAMES = ("office0", "office1", "office2", "office3", "office4", "room0", "room1", "room2")
 
 WALL_T = 0.3  # wall thickness: door/window recesses are cut this deep at most

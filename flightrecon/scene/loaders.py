@@ -1,0 +1,133 @@
+"""Load any supported mesh file into a `Scene` (z-up, meters), or fail with one clear SceneError.
+
+Formats: Replica's mesh.ply and any PLY with per-vertex colors (our reader), OBJ + MTL with a UV
+texture and GLB/GLTF (trimesh). Options scale units and rotate y-up files to z-up. A sidecar
+`scene_meta.json` written beside a procedural mesh restores its metadata (free flight region etc.).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from flightrecon.errors import SceneError
+from flightrecon.scene.replica_ply import read_ply
+from flightrecon.scene.types import Scene
+
+META_FILE = "scene_meta.json"
+MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf")
+_FRAME_KEYS = ("floor_z", "ceiling_z", "room_box", "free_box", "spawn", "openings")
+
+# y-up file -> z-up world: +90 deg about x, so file +y becomes world +z and file +z becomes world -y.
+_Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def load_scene(path: str | os.PathLike, unit_scale: float = 1.0, up_axis: str = "z",
+               name: str | None = None) -> Scene:
+    """Read a scene file (or a folder holding mesh.ply, Replica's layout) into the world frame."""
+    path = Path(path).expanduser()
+    if path.is_dir() and (path / "mesh.ply").is_file():
+        path = path / "mesh.ply"
+    if not path.exists():
+        raise SceneError(f"scene file not found: {path}")
+    if not path.is_file():
+        raise SceneError(f"scene path is not a file: {path}")
+    if up_axis not in ("z", "y"):
+        raise SceneError(f"scene {path}: up axis must be 'z' or 'y', got {up_axis!r}")
+    if not (np.isfinite(unit_scale) and unit_scale > 0):
+        raise SceneError(f"scene {path}: unit scale must be a positive number, got {unit_scale!r}")
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        d = read_ply(path)
+    elif suffix in (".obj", ".glb", ".gltf"):
+        d = _read_trimesh(path)
+    else:
+        raise SceneError(f"scene file {path}: unsupported format '{suffix}' (use {', '.join(MESH_SUFFIXES)})")
+    meta = {"quad_faces": bool(d.pop("quad_faces", False))}
+    meta.update(_read_sidecar(path))
+    default_name = path.parent.name if path.name == "mesh.ply" else path.stem
+    scene = Scene(name=name or meta.get("name") or default_name, vertices=d["vertices"], faces=d["faces"], vertex_colors=d.get("vertex_colors"),
+                  face_colors=d.get("face_colors"), uv=d.get("uv"), texture=d.get("texture"),
+                  vertex_normals=d.get("vertex_normals"), source=path, source_up_axis=up_axis, meta=meta)
+    validate(scene, path)
+    _to_world(scene, unit_scale, up_axis)
+    return scene
+
+
+def validate(scene: Scene, path: Path | str) -> None:
+    """Reject empty meshes, NaN/inf vertices, out-of-range faces and mismatched appearance arrays."""
+    v, f = scene.vertices, scene.faces
+    if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+        raise SceneError(f"scene file {path} has no vertices")
+    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+        raise SceneError(f"scene file {path} has no faces")
+    bad = ~np.isfinite(v).all(axis=1)
+    if bad.any():
+        raise SceneError(f"scene file {path} has {int(bad.sum())} vertices with NaN or infinite "
+                         f"coordinates (first: vertex {int(np.argmax(bad))})")
+    if f.min() < 0 or f.max() >= len(v):
+        raise SceneError(f"scene file {path} has faces that index missing vertices "
+                         f"(indices {int(f.min())}..{int(f.max())}, {len(v)} vertices)")
+    for attr, n in (("vertex_colors", len(v)), ("uv", len(v)), ("vertex_normals", len(v)), ("face_colors", len(f))):
+        a = getattr(scene, attr)
+        if a is not None and len(a) != n:
+            raise SceneError(f"scene file {path}: {attr} has {len(a)} entries for {n} elements")
+    extent = np.ptp(v, axis=0)
+    if not np.any(extent > 0):
+        raise SceneError(f"scene file {path} is degenerate (all vertices at one point)")
+
+
+def _to_world(scene: Scene, unit_scale: float, up_axis: str) -> None:
+    R = _Y_UP_TO_Z_UP if up_axis == "y" else np.eye(3)
+    scene.vertices = (scene.vertices @ R.T) * unit_scale
+    if scene.vertex_normals is not None:
+        scene.vertex_normals = scene.vertex_normals @ R.T
+    if up_axis != "z" or unit_scale != 1.0:
+        for key in _FRAME_KEYS:  # sidecar values were written in the file's own frame
+            scene.meta.pop(key, None)
+
+
+def _read_trimesh(path: Path) -> dict:
+    """OBJ/GLB/GLTF through trimesh: geometry, and UV texture or colors if present."""
+    import trimesh
+
+    try:
+        mesh = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as exc:  # trimesh and its parsers raise many types on malformed input
+        raise SceneError(f"cannot read scene file {path}: {type(exc).__name__}: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise SceneError(f"scene file {path} holds no triangle mesh")
+    out: dict = {"vertices": np.asarray(mesh.vertices, np.float64), "faces": np.asarray(mesh.faces, np.int64)}
+    visual = mesh.visual
+    if isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
+        image = getattr(visual.material, "image", None) or getattr(visual.material, "baseColorTexture", None)
+        if image is not None:
+            out["uv"] = np.asarray(visual.uv, np.float64)
+            out["texture"] = np.asarray(image.convert("RGB"), np.uint8)
+        else:
+            color = getattr(visual.material, "main_color", None)
+            if color is not None:
+                out["face_colors"] = np.tile(np.asarray(color[:3], np.uint8), (len(mesh.faces), 1))
+    elif isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind is not None:
+        if visual.kind == "vertex":
+            out["vertex_colors"] = np.asarray(visual.vertex_colors[:, :3], np.uint8)
+        else:
+            out["face_colors"] = np.asarray(visual.face_colors[:, :3], np.uint8)
+    return out
+
+
+def _read_sidecar(path: Path) -> dict:
+    """Metadata of a procedural scene written beside its mesh; ignored if it names another mesh."""
+    side = path.parent / META_FILE
+    if not side.is_file():
+        return {}
+    try:
+        meta = json.loads(side.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise SceneError(f"scene metadata {side} is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict) or meta.get("mesh") != path.name:
+        return {}
+    return meta
