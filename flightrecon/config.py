@@ -70,14 +70,15 @@ class SimConfig:
     pose_noise_pos_m: float = _f(0.0, 0.0, 1.0, doc="std of noise added to the pose given to mapping")
     pose_noise_rot_deg: float = _f(0.0, 0.0, 30.0)
     takeoff_height: float = _f(1.2, 0.2, 5.0, doc="m above the floor")
+    divergence_tilt_deg: float = _f(80.0, 10.0, 179.0, doc="tilt that stops a flight as diverged")
 
 
 @dataclass(frozen=True)
 class ControlConfig:
-    kp: list = _f([8.0, 8.0, 10.0], doc="position gains (1/s^2)")
-    kv: list = _f([5.0, 5.0, 6.0], doc="velocity gains (1/s)")
-    kr: list = _f([8.0, 8.0, 3.0], doc="attitude gains, scaled by inertia")
-    kw: list = _f([1.5, 1.5, 1.0], doc="angular-rate gains, scaled by inertia")
+    kp: list = _f([14.0, 14.0, 14.0], doc="position gains (1/s^2)")
+    kv: list = _f([7.0, 7.0, 7.0], doc="velocity gains (1/s)")
+    kr: list = _f([300.0, 300.0, 60.0], doc="attitude gains (1/s^2), multiplied by the inertia")
+    kw: list = _f([30.0, 30.0, 14.0], doc="angular-rate gains (1/s), multiplied by the inertia")
     arrive_pos_tol: float = _f(0.05, 1e-4, 1.0, doc="m")
     arrive_yaw_tol_deg: float = _f(3.0, 0.01, 45.0)
     arrive_speed_tol: float = _f(0.05, 1e-4, 1.0, doc="m/s")
