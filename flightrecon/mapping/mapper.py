@@ -1,0 +1,156 @@
+"""Online 2DGS mapping: add a frame's new splats, then optimize on it and on replayed frames.
+
+One `add_frame` is the paper's per-timestep update (Section III-B): gamma-rejected initialization
+from the frame, K_new Adam iterations on it, then K_replay iterations each on a frame drawn at random
+(seeded) from the earlier ones. With `prune_opacity > 0`, splats whose opacity fell below it are
+dropped after the update (off by default, as in the paper: a removed splat loses its reliability).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from flightrecon.config import MapperConfig
+from flightrecon.geometry import pixel_rays
+from flightrecon.mapping import init as splat_init
+from flightrecon.mapping.frames import StoredFrame, compact_frame, expand_frame
+from flightrecon.mapping.losses import training_loss
+from flightrecon.mapping.optimizer import SparseAdam
+from flightrecon.mapping.store import GaussianMap
+from flightrecon.mapping.voxel_hash import reject_near
+from flightrecon.render import render
+
+log = logging.getLogger(__name__)
+
+TRAIN_OUTPUTS = ("features", "alpha", "depth", "normal", "distortion")
+_MIN_SCALE = 1e-3  # m; splats finer than a millimetre add nothing at our resolutions
+
+
+@dataclass
+class FrameStats:
+    frame: int
+    added: int
+    total: int
+
+
+def default_device(backend: str) -> torch.device:
+    """Where the map lives: the GPU when the rasterizer backend will be gsplat's CUDA one."""
+    if backend == "cuda" or (backend == "auto" and torch.cuda.is_available()):
+        return torch.device("cuda")
+    return torch.device("cpu")
+
+
+class OnlineMapper:
+    """The 2DGS map, its optimizer and its replay frames; feed it frames in capture order."""
+
+    def __init__(self, cfg: MapperConfig, *, near: float = 0.05, far: float = 10.0, seed: int = 0,
+                 device: str | torch.device | None = None) -> None:
+        self.cfg = cfg
+        self.near, self.far = float(near), float(far)
+        self.device = torch.device(device) if device is not None else default_device(cfg.backend)
+        self.map = GaussianMap(device=self.device)
+        self.adam = SparseAdam(self.map, {
+            "means": cfg.lr_means, "quats": cfg.lr_rotations, "log_scales": cfg.lr_scales,
+            "opacity_logits": cfg.lr_opacities, "colors": cfg.lr_colors})
+        self.frames: list[StoredFrame] = []
+        self.rng = np.random.default_rng(seed)
+        self._rays: dict[tuple, torch.Tensor] = {}
+
+    # -- one timestep ---------------------------------------------------------------------------
+    def add_frame(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> FrameStats:
+        """Insert new splats from the frame and run K_new + K_replay iterations."""
+        index = len(self.frames)
+        depth = np.asarray(depth, np.float32)
+        valid = splat_init.valid_depth_mask(depth, self.near, self.far)
+        if not valid.any():
+            log.warning("frame %d has no valid depth in (%.3g, %.3g] m: skipped", index, self.near, self.far)
+            return FrameStats(index, 0, len(self.map))
+        frame = compact_frame(rgb, depth, K, T_wc, valid)
+        self.frames.append(frame)
+        added = self._insert(rgb, depth, K, T_wc, index)
+        self._optimize(frame, self.cfg.k_new, count_observed=True)
+        for _ in range(self.cfg.k_replay):
+            pick = int(self.rng.integers(index)) if index > 0 else 0
+            self._optimize(self.frames[pick], 1)
+        if self.cfg.prune_opacity > 0:
+            self.map.keep(torch.sigmoid(self.map["opacity_logits"]) >= self.cfg.prune_opacity)
+        return FrameStats(index, added, len(self.map))
+
+    def _insert(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, index: int) -> int:
+        cand = splat_init.frame_candidates(rgb, depth, K, T_wc, near=self.near, far=self.far,
+                                           subsample=self.cfg.init_subsample, rng=self.rng)
+        if len(self.map) > 0:  # the first frame is inserted whole (2DGS-SLAM)
+            keep = reject_near(cand["points"], self.map["means"].cpu().numpy(), self.cfg.gamma)
+            cand = {k: v[keep] for k, v in cand.items()}
+        if len(cand["points"]) == 0:
+            return 0
+        params = splat_init.splat_params(cand["points"], cand["normals"], cand["colors"],
+                                         opacity=self.cfg.init_opacity, min_scale=_MIN_SCALE,
+                                         max_scale=self.cfg.gamma)
+        self.map.append(frame=index, **{k: torch.from_numpy(v) for k, v in params.items()})
+        return len(cand["points"])
+
+    def _optimize(self, frame: StoredFrame, iters: int, count_observed: bool = False) -> None:
+        if iters <= 0 or len(self.map) == 0:
+            return
+        rgb, depth = expand_frame(frame, self.device)
+        H, W = depth.shape[:2]
+        rays = self._rays_for(W, H, frame.K)
+        viewmat = frame.viewmat.to(self.device)[None]
+        Ks = frame.K.to(self.device)[None]
+        leaves = self.adam.leaves()
+        c = self.cfg
+        for it in range(iters):
+            out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS)
+            loss = training_loss(out, rgb, depth, rays, ssim_weight=c.ssim_weight, lambda_depth=c.lambda_depth,
+                                 lambda_normal=c.lambda_normal, lambda_distortion=c.lambda_distortion)
+            loss.backward()
+            visible = torch.nonzero(out.radii[0] > 0, as_tuple=True)[0]
+            if count_observed and it == 0:
+                self.map["n_observed"][visible] += 1
+            self.adam.step(leaves, visible)
+
+    # -- queries --------------------------------------------------------------------------------
+    def _render(self, p: dict[str, torch.Tensor], viewmats: torch.Tensor, Ks: torch.Tensor, W: int, H: int,
+                outputs: tuple[str, ...]):
+        return render(p["means"], F.normalize(p["quats"], dim=-1), p["log_scales"], p["opacity_logits"],
+                      p["colors"], viewmats, Ks, W, H, near=self.near, far=self.far, outputs=outputs,
+                      backend=self.cfg.backend)
+
+    @torch.no_grad()
+    def render_view(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int,
+                    outputs: tuple[str, ...] = ("features", "alpha", "depth")):
+        """Render the current map from camera-to-world `T_wc` (one camera)."""
+        p = {name: self.map[name] for name in ("means", "quats", "log_scales", "opacity_logits", "colors")}
+        viewmat = torch.as_tensor(np.linalg.inv(T_wc), dtype=torch.float32, device=self.device)[None]
+        Ks = torch.as_tensor(K, dtype=torch.float32, device=self.device)[None]
+        return self._render(p, viewmat, Ks, width, height, outputs)
+
+    @torch.no_grad()
+    def frame_loss(self, index: int) -> float:
+        """Training loss of stored frame `index` under the current map (for tests and logs)."""
+        f = self.frames[index]
+        rgb, depth = expand_frame(f, self.device)
+        H, W = depth.shape[:2]
+        p = {name: self.map[name] for name in ("means", "quats", "log_scales", "opacity_logits", "colors")}
+        out = self._render(p, f.viewmat.to(self.device)[None], f.K.to(self.device)[None], W, H, TRAIN_OUTPUTS)
+        c = self.cfg
+        return float(training_loss(out, rgb, depth, self._rays_for(W, H, f.K), ssim_weight=c.ssim_weight,
+                                   lambda_depth=c.lambda_depth, lambda_normal=c.lambda_normal,
+                                   lambda_distortion=c.lambda_distortion))
+
+    def _rays_for(self, W: int, H: int, K: torch.Tensor) -> torch.Tensor:
+        key = (W, H, *K.flatten().tolist())
+        if key not in self._rays:
+            self._rays[key] = torch.as_tensor(pixel_rays(W, H, K.double().numpy()), dtype=torch.float32,
+                                              device=self.device)
+        return self._rays[key]
+
+    def frame_bytes(self) -> int:
+        """Memory held by the replay frames."""
+        return sum(f.rgb.numel() + 2 * f.depth_mm.numel() for f in self.frames)

@@ -1,0 +1,73 @@
+"""Mapping a recorded RGB-D dataset as if in flight, and scoring the map on its views.
+
+Shared by `flightrecon map` (which writes the results) and `flightrecon bench map` (which times it).
+Frames are fed in recording order, one `add_frame` each, except the held-out ones: with holdout k,
+frames k-1, 2k-1, ... (every k-th, never the first) are kept for evaluation only.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+import torch
+
+from flightrecon.config import ScenarioConfig
+from flightrecon.dataset import Dataset
+from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim
+from flightrecon.mapping.mapper import FrameStats, OnlineMapper
+
+
+def split_holdout(n: int, holdout: int) -> tuple[list[int], list[int]]:
+    """(train, test) frame indices; holdout 0 trains on everything."""
+    if holdout <= 0:
+        return list(range(n)), []
+    test = [i for i in range(n) if i % holdout == holdout - 1]
+    return [i for i in range(n) if i % holdout != holdout - 1], test
+
+
+@dataclass
+class TrainResult:
+    mapper: OnlineMapper
+    train: list[int]
+    test: list[int]
+    seconds: list[float] = field(default_factory=list)  # add_frame wall time per training frame
+
+
+def train_on_dataset(ds: Dataset, cfg: ScenarioConfig, holdout: int = 5, limit: int | None = None,
+                     on_frame: Callable[[int, int, FrameStats, float], None] | None = None) -> TrainResult:
+    """Feed the training frames to a fresh OnlineMapper in order; `on_frame(k, total, stats, s)` reports."""
+    n = len(ds) if limit is None else min(len(ds), limit)
+    train, test = split_holdout(n, holdout)
+    mapper = OnlineMapper(cfg.mapper, near=cfg.camera.near, far=cfg.camera.far, seed=cfg.seed)
+    result = TrainResult(mapper, train, test)
+    for k, i in enumerate(train):
+        f = ds[i]
+        t0 = time.perf_counter()
+        stats = mapper.add_frame(f.rgb, f.depth, f.K, f.T_wc)
+        result.seconds.append(time.perf_counter() - t0)
+        if on_frame is not None:
+            on_frame(k, len(train), stats, result.seconds[-1])
+    return result
+
+
+def evaluate_view(mapper: OnlineMapper, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray,
+                  T_wc: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
+    """PSNR, SSIM and depth L1 (m, over valid observed depth) of the map at one view, and the renders."""
+    H, W = depth.shape[:2]
+    out = mapper.render_view(T_wc, K, W, H, outputs=("features", "alpha", "depth"))
+    color = out.features[0].clamp(0.0, 1.0).cpu().double()
+    d = out.depth[0].cpu().double()
+    obs_rgb = torch.from_numpy(np.asarray(rgb, np.float64))
+    obs_d = torch.from_numpy(np.asarray(depth, np.float64))[..., None]
+    obs_d = torch.where(obs_d <= mapper.far, obs_d, torch.zeros_like(obs_d))
+    metrics = {"psnr": float(psnr(color, obs_rgb)), "ssim": float(ssim(color, obs_rgb)),
+               "depth_l1": float(depth_l1(d, obs_d))}
+    return metrics, color.numpy(), d[..., 0].numpy()
+
+
+def mean_metrics(rows: list[dict]) -> dict:
+    keys = ("psnr", "ssim", "depth_l1")
+    return {k: float(np.mean([r[k] for r in rows])) for k in keys} if rows else {}
