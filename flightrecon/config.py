@@ -95,6 +95,7 @@ class PlannerConfig:
     max_jerk: float = _f(8.0, 0.1, 200.0, doc="m/s^3 per axis")
     max_yaw_rate_deg: float = _f(90.0, 1.0, 720.0)
     max_yaw_acc_deg: float = _f(180.0, 1.0, 3600.0)
+    max_yaw_jerk_deg: float = _f(720.0, 1.0, 36000.0, doc="deg/s^3")
     max_duration: float = _f(15.0, 0.5, 300.0, doc="s; longer trajectories are rejected")
     use_ground_truth: bool = _f(False, doc="plan on the true scene instead of the online occupancy map")
     library: str = _f("default", doc="'default' (198 candidates) or a path to a TOML candidate list")
