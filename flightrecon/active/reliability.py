@@ -1,0 +1,139 @@
+"""Two-sided splat reliability (the paper's Section IV-A, Eqs. 7-16).
+
+Each splat keeps two log-odds, front (along its normal, the side first observed, since
+initialization orients normals toward the camera) and back. After a frame is mapped, the map is
+rendered at the frame's pose and the per-pixel reconstruction loss image
+
+    L = L_C + lambda_rD L_D + lambda_rNr L_Nrend                                         (Eq. 15)
+
+is turned into per-pixel evidence v_j = -log(max(lambda_L L_j, loss_floor)). The per-splat sum
+S_i = sum_j v_j T^[i,j] is the gradient of sum_j v_j F_j with respect to a constant one-channel
+feature f_i = 1 (design.md's key identity), so one forward + backward of the rasterizer gives it
+for every splat. The update (Eq. 14) adds lambda_T |w_i| S_i to the side selected by
+w_i = n_i . d_i (Eq. 12, 13): front if w_i > w_min, back if w_i < -w_min, no update otherwise.
+
+Bound: L_j -> 0 makes -log(lambda_L L_j) unbounded; L_j is clamped to `loss_floor` (default 1e-4,
+GauSS-MI's value), so one pixel adds at most -log(1e-4) = 9.21 nats times lambda_T |w| T. The
+log-odds are kept in [-logodds_clamp, logodds_clamp] (default 10, GauSS-MI's), so P stays in
+[4.5e-5, 0.99995] and -log P in the MI stays finite.
+
+Loss image details: L_C = (1 - s) |C - C_obs| (mean over RGB) + s (1 - SSIM_j) with the mapper's
+D-SSIM weight s and an 11x11 Gaussian SSIM (border pixels, where the window does not fit, use the
+L1 term alone); L_D = |D - D_obs| in meters and L_Nrend = 1 - N . N_obs (N_obs from the observed
+depth) are added only where the observed depth is valid.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from flightrecon.config import ReliabilityConfig
+from flightrecon.geometry import pixel_rays
+from flightrecon.mapping.image_metrics import ssim_map
+from flightrecon.mapping.losses import normals_from_depth
+from flightrecon.render import render
+from flightrecon.render.projection import quat_to_rotmat
+
+FRONT, BACK, SKIP = 0, 1, -1
+
+
+def splat_normals(quats: torch.Tensor) -> torch.Tensor:
+    """World-frame unit normals [N,3] (third column of each splat's rotation)."""
+    return quat_to_rotmat(quats)[..., 2]
+
+
+def observation_weights(means: torch.Tensor, normals: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
+    """w [C,N] = n_i . (c - mu_i) / |c - mu_i| for camera centers [C,3] (Eq. 12)."""
+    d = F.normalize(centers[:, None, :] - means[None], dim=-1)
+    return (d * normals[None]).sum(-1)
+
+
+def observed_side(w: torch.Tensor, w_min: float) -> torch.Tensor:
+    """FRONT (0) where w > w_min, BACK (1) where w < -w_min, SKIP (-1) when nearly edge-on (Eq. 13)."""
+    side = torch.full_like(w, SKIP, dtype=torch.long)
+    side[w > w_min] = FRONT
+    side[w < -w_min] = BACK
+    return side
+
+
+def loss_image(color: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor, rgb_obs: torch.Tensor,
+               depth_obs: torch.Tensor, rays: torch.Tensor, cfg: ReliabilityConfig,
+               ssim_weight: float) -> torch.Tensor:
+    """Per-pixel reconstruction loss L [H,W] (Eq. 15) of one rendered view against its observation.
+
+    color [H,W,3], depth [H,W,1], normal [H,W,3] (camera frame), rgb_obs [H,W,3], depth_obs [H,W,1]
+    (0 = invalid), rays [H,W,3] pixel directions with z = 1.
+    """
+    l1 = (color - rgb_obs).abs().mean(-1)
+    L = l1.clone()
+    r = 5
+    H, W = l1.shape
+    if ssim_weight > 0 and H > 2 * r and W > 2 * r:
+        dssim = 1.0 - ssim_map(color, rgb_obs).mean(-1)
+        L[r:-r, r:-r] = (1.0 - ssim_weight) * l1[r:-r, r:-r] + ssim_weight * dssim
+    valid = depth_obs[..., 0] > 0
+    n_obs = normals_from_depth(depth_obs, rays)
+    has_normal = valid & (n_obs.abs().sum(-1) > 0)
+    L_D = (depth - depth_obs).abs()[..., 0]
+    L_N = 1.0 - (normal * n_obs).sum(-1)
+    L = L + cfg.lambda_rD * torch.where(valid, L_D, 0.0) + cfg.lambda_rNr * torch.where(has_normal, L_N, 0.0)
+    return L
+
+
+def pixel_evidence(L: torch.Tensor, cfg: ReliabilityConfig) -> torch.Tensor:
+    """v_j = -log(max(lambda_L L_j, loss_floor)) (the log of Eq. 11's inverse sensing model)."""
+    return -torch.log((cfg.lambda_L * L).clamp_min(cfg.loss_floor))
+
+
+def splat_pixel_sums(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
+                     opacity_logits: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor,
+                     pixel_values: torch.Tensor, near: float, far: float, backend: str = "auto") -> torch.Tensor:
+    """S_i = sum_j v_j T^[i,j] for every splat [N], by one render + backward of a unit feature."""
+    N = means.shape[0]
+    H, W = pixel_values.shape
+    ones = torch.ones(N, 1, dtype=means.dtype, device=means.device, requires_grad=True)
+    with torch.enable_grad():
+        out = render(means.detach(), quats.detach(), log_scales.detach(), opacity_logits.detach(), ones,
+                     viewmat[None], K[None], W, H, near=near, far=far, outputs=("features",),
+                     backend=backend)
+        (grad,) = torch.autograd.grad((out.features[0, ..., 0] * pixel_values).sum(), ones)
+    return grad[:, 0]
+
+
+def reliability_update(reliability: torch.Tensor, w: torch.Tensor, sums: torch.Tensor,
+                       cfg: ReliabilityConfig) -> torch.Tensor:
+    """New log-odds [N,2]: add lambda_T |w| S to the observed side (Eq. 14), clamp, skip edge-on."""
+    side = observed_side(w, cfg.w_min)
+    delta = cfg.lambda_T * w.abs() * sums
+    out = reliability.clone()
+    for s in (FRONT, BACK):
+        m = side == s
+        out[m, s] += delta[m]
+    return out.clamp(-cfg.logodds_clamp, cfg.logodds_clamp)
+
+
+@torch.no_grad()
+def update_from_frame(splats: dict[str, torch.Tensor], reliability: torch.Tensor, rgb_obs: torch.Tensor,
+                      depth_obs: torch.Tensor, T_wc: torch.Tensor, K: torch.Tensor, cfg: ReliabilityConfig,
+                      *, ssim_weight: float, near: float, far: float, backend: str = "auto") -> tuple[torch.Tensor, dict]:
+    """One reliability update after a frame was mapped; returns the new log-odds and diagnostics.
+
+    `splats` holds means, quats, log_scales, opacity_logits (the map's current parameters).
+    """
+    H, W = depth_obs.shape[:2]
+    viewmat = torch.linalg.inv(T_wc)
+    out = render(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"],
+                 splats["colors"], viewmat[None], K[None], W, H, near=near, far=far,
+                 outputs=("features", "depth", "normal"), backend=backend)
+    rays = torch.as_tensor(pixel_rays(W, H, K.cpu().numpy()), dtype=K.dtype, device=K.device)
+    L = loss_image(out.features[0], out.depth[0], out.normal[0], rgb_obs, depth_obs, rays, cfg, ssim_weight)
+    v = pixel_evidence(L, cfg)
+    sums = splat_pixel_sums(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"],
+                            viewmat, K, v, near, far, backend)
+    normals = splat_normals(splats["quats"])
+    w = observation_weights(splats["means"], normals, T_wc[None, :3, 3])[0]
+    new = reliability_update(reliability, w, sums, cfg)
+    touched = (sums != 0) & (w.abs() > cfg.w_min)
+    return new, {"loss_mean": float(L.mean()), "updated": int(touched.sum())}
+

@@ -1,0 +1,135 @@
+"""Reliability update and 2D GauSS-MI against brute-force per-pixel evaluation on tiny scenes.
+
+The brute force gets T^[i,j] for every splat and pixel by rendering one-hot features (channel i of
+the image is splat i's blending weight), then applies Eq. 14 and Eq. 22 as written, with loops.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from flightrecon.active import gaussmi2d, reliability
+from flightrecon.config import ReliabilityConfig
+from flightrecon.geometry import camera_pose, intrinsics, rotmat_to_quat
+from flightrecon.render import render
+
+CFG = ReliabilityConfig()
+W, H = 24, 18
+BACKENDS = ["reference", "cpu"]
+
+
+def _wall(n_side: int = 3, x: float = 2.0) -> dict[str, torch.Tensor]:
+    """A small wall of splats in the plane x = `x`, normals along -x (facing a camera at the origin)."""
+    ys, zs = np.meshgrid(np.linspace(-0.3, 0.3, n_side), np.linspace(0.9, 1.5, n_side))
+    means = np.stack([np.full(ys.size, x), ys.ravel(), zs.ravel()], 1)
+    R = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # columns t_u, t_v, n
+    quats = np.repeat(rotmat_to_quat(R)[None], len(means), 0)
+    t = lambda a: torch.tensor(a, dtype=torch.float32)  # noqa: E731
+    return {"means": t(means), "quats": t(quats), "log_scales": torch.full((len(means), 2), math.log(0.12)),
+            "opacity_logits": torch.full((len(means),), 2.0), "colors": torch.full((len(means), 3), 0.5)}
+
+
+def _weights(s, T_wc, K, backend) -> torch.Tensor:
+    """T^[i,j] as an [N,H,W] tensor via one-hot features."""
+    N = s["means"].shape[0]
+    out = render(s["means"], s["quats"], s["log_scales"], s["opacity_logits"], torch.eye(N),
+                 torch.linalg.inv(T_wc)[None], K[None], W, H, outputs=("features",), backend=backend)
+    return out.features[0].permute(2, 0, 1)
+
+
+def _cam(pos, yaw):
+    return torch.tensor(camera_pose(np.array(pos, float), yaw), dtype=torch.float32)
+
+
+K = torch.tensor(intrinsics(W, H, 90.0), dtype=torch.float32)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_pixel_sums_equal_brute_force(backend):
+    s = _wall()
+    T = _cam([0.0, 0.1, 1.2], 0.0)
+    v = torch.rand(H, W, generator=torch.Generator().manual_seed(0))
+    sums = reliability.splat_pixel_sums(s["means"], s["quats"], s["log_scales"], s["opacity_logits"],
+                                        torch.linalg.inv(T), K, v, 0.05, 10.0, backend)
+    Tij = _weights(s, T, K, backend)
+    brute = torch.tensor([sum(float(v[j, k] * Tij[i, j, k]) for j in range(H) for k in range(W))
+                          for i in range(Tij.shape[0])])
+    assert (brute > 0).all()
+    torch.testing.assert_close(sums, brute, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_update_sides_and_gating(backend):
+    s = _wall()
+    N = s["means"].shape[0]
+    rel0 = torch.zeros(N, 2)
+    rgb = torch.full((H, W, 3), 0.5)
+
+    def update(T):
+        depth = torch.zeros(H, W, 1)  # no valid depth: the color term alone decides L
+        return reliability.update_from_frame(s, rel0, rgb, depth, T, K, CFG, ssim_weight=0.0,
+                                             near=0.05, far=10.0, backend=backend)[0]
+
+    front = update(_cam([0.0, 0.0, 1.2], 0.0))  # head-on, rendered color equals observed where opaque
+    assert (front[:, 0] > 0).any() and (front[:, 1] == 0).all()
+    behind = update(_cam([4.0, 0.0, 1.2], math.pi))  # same wall seen from +x: back side
+    assert (behind[:, 1] > 0).any() and (behind[:, 0] == 0).all()
+    edge_on = update(_cam([2.0, -3.0, 1.2], math.pi / 2))  # camera in the wall's plane
+    torch.testing.assert_close(edge_on, rel0)
+    away = update(_cam([0.0, 0.0, 1.2], math.pi))  # looking away: out of view
+    torch.testing.assert_close(away, rel0)
+
+
+def test_update_formula_matches_eq14_by_hand():
+    s = _wall(1)  # one splat at (2, -0.3, 0.9)
+    T = _cam([0.0, -0.3, 0.9], 0.0)
+    v = torch.rand(H, W, generator=torch.Generator().manual_seed(1))
+    Tij = _weights(s, T, K, "reference")
+    w = reliability.observation_weights(s["means"], reliability.splat_normals(s["quats"]), T[None, :3, 3])[0]
+    sums = (Tij * v).sum(dim=(1, 2))
+    new = reliability.reliability_update(torch.zeros(1, 2), w, sums, CFG)
+    assert float(w[0]) == pytest.approx(1.0, abs=1e-5)
+    assert float(new[0, 0]) == pytest.approx(min(CFG.lambda_T * float(w[0]) * float(sums[0]), 10.0), rel=1e-5)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_mi_equals_brute_force_eq22(backend):
+    s = _wall()
+    N = s["means"].shape[0]
+    rel = torch.linspace(-3.0, 4.0, 2 * N).reshape(N, 2)
+    poses = torch.stack([_cam([0.0, 0.0, 1.2], 0.0), _cam([0.3, -0.4, 1.0], 0.3), _cam([4.0, 0.2, 1.2], math.pi)])
+    mi = gaussmi2d.score_candidates(s, rel, poses, K, W, H, w_min=CFG.w_min, near=0.05, far=10.0, backend=backend)
+    normals = reliability.splat_normals(s["quats"])
+    for c in range(len(poses)):
+        Tij = _weights(s, poses[c], K, backend)
+        w = reliability.observation_weights(s["means"], normals, poses[c][None, :3, 3])[0]
+        total = 0.0
+        for i in range(N):
+            if abs(float(w[i])) <= CFG.w_min:
+                continue
+            side = 0 if w[i] > 0 else 1
+            p = 1.0 / (1.0 + math.exp(-float(rel[i, side])))
+            total += -abs(float(w[i])) * math.log(p) * float(Tij[i].sum())
+        assert float(mi[c]) == pytest.approx(total, rel=1e-4)
+    assert float(mi[2]) > 0  # the back side is scored from behind
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_unreliable_surface_scores_higher(backend):
+    left, right = _wall(x=2.0), _wall(x=2.0)
+    right["means"] = right["means"] + torch.tensor([0.0, 3.0, 0.0])  # a second wall to the +y side
+    s = {k: torch.cat([left[k], right[k]]) for k in left}
+    n = left["means"].shape[0]
+    rel = torch.zeros(2 * n, 2)
+    rel[:n, 0] = 8.0  # the left wall is well reconstructed
+    poses = torch.stack([_cam([0.0, 0.0, 1.2], 0.0), _cam([0.0, 3.0, 1.2], 0.0)])
+    mi = gaussmi2d.score_candidates(s, rel, poses, K, W, H, w_min=0.1, near=0.05, far=10.0, backend=backend)
+    assert float(mi[1]) > 10 * float(mi[0]) > 0
+
+
+def test_depth_noise_prior_is_one_at_best_range_and_decreasing():
+    d = torch.tensor([0.0, 0.3, 0.4, 1.0, 3.0])
+    p = gaussmi2d.depth_noise_prior(d)
+    assert p[0] == 0 and p[1] == 1 and p[2] == 1 and 1 > p[3] > p[4] > 0
