@@ -1,0 +1,221 @@
+"""The fixed-rate flight cycle: control at `sim.control_rate_hz`, physics at `sim.physics_dt`.
+
+Each control step reads the simulated state (the truth everything downstream uses), samples the
+reference, runs the SE(3) controller and the mixer, holds the motor commands for the physics
+substeps, then records one log row (state, reference, commands, rotor thrusts, clearance) and any
+new contact with the scene. A diverged state stops the flight with `FlightDiverged`, whose `log`
+(and `Flight.log`) keep everything recorded up to it. `wait_until_arrived` holds the last reference
+until position, yaw and speed have stayed inside their tolerances for the settle time, so images are
+taken at rest. `estimated_camera_pose` adds the configured pose noise (what a mapper would get from
+a state estimator); `camera_pose` is the exact simulated pose.
+"""
+
+from __future__ import annotations
+
+import math
+
+import mujoco
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from flightrecon.config import ScenarioConfig
+from flightrecon.control.mixer import Mixer
+from flightrecon.control.reference_paths import MinJerkMove, wrap_angle
+from flightrecon.control.se3 import SE3Controller
+from flightrecon.control.trajectory import FlatState, Hold, Trajectory
+from flightrecon.errors import ConfigError
+from flightrecon.sim.quadrotor import DroneHandle, DroneState
+from flightrecon.sim.safety import (ClearanceMonitor, ContactEvent, ContactMonitor, FlightDiverged,
+                                    divergence_reason)
+
+COLUMNS = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "vx", "vy", "vz", "wx", "wy", "wz",
+           "ref_x", "ref_y", "ref_z", "ref_vx", "ref_vy", "ref_vz", "ref_yaw",
+           "cmd0", "cmd1", "cmd2", "cmd3", "thrust0", "thrust1", "thrust2", "thrust3", "clearance")
+_COL = {name: i for i, name in enumerate(COLUMNS)}
+
+
+class FlightLog:
+    """Time series of one flight (one row per control step, `COLUMNS`) and its contact events."""
+
+    def __init__(self) -> None:
+        self._rows: list[np.ndarray] = []
+        self._cache: np.ndarray | None = None
+        self.events: list[ContactEvent] = []
+        self.notes: list[str] = []
+
+    def append(self, row: np.ndarray) -> None:
+        self._rows.append(row)
+        self._cache = None
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    @property
+    def array(self) -> np.ndarray:
+        if self._cache is None:
+            self._cache = np.array(self._rows).reshape(-1, len(COLUMNS))
+        return self._cache
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.array[:, _COL[name]]
+
+    def block(self, *names: str) -> np.ndarray:
+        return self.array[:, [_COL[n] for n in names]]
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self.block("x", "y", "z")
+
+    @property
+    def reference_positions(self) -> np.ndarray:
+        return self.block("ref_x", "ref_y", "ref_z")
+
+    def tracking_rms(self) -> float:
+        """RMS of the 3D position error against the reference."""
+        e = self.positions - self.reference_positions
+        return float(np.sqrt(np.mean(np.sum(e * e, axis=1)))) if len(self) else 0.0
+
+    def columns(self) -> dict[str, np.ndarray]:
+        return {name: self.array[:, i] for i, name in enumerate(COLUMNS)}
+
+    def slice_from(self, start: int) -> "FlightLog":
+        out = FlightLog()
+        out._rows = self._rows[start:]
+        return out
+
+
+class Flight:
+    """Flies a drone of a compiled MuJoCo world along trajectories in the fixed-rate cycle."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, cfg: ScenarioConfig,
+                 clearance: ClearanceMonitor | None = None) -> None:
+        self.model, self.data, self.cfg = model, data, cfg
+        self.drone = DroneHandle(model)
+        substeps = 1.0 / (cfg.sim.control_rate_hz * cfg.sim.physics_dt)
+        if abs(substeps - round(substeps)) > 1e-6 or round(substeps) < 1:
+            raise ConfigError(f"config key 'sim.control_rate_hz': {cfg.sim.control_rate_hz} Hz is not a whole "
+                              f"fraction of the physics rate 1/sim.physics_dt = {1 / cfg.sim.physics_dt:g} Hz")
+        self.substeps = int(round(substeps))
+        model.opt.timestep = cfg.sim.physics_dt
+        self.control_dt = self.substeps * cfg.sim.physics_dt
+        g = -float(model.opt.gravity[2])
+        self.controller = SE3Controller.from_config(cfg, self.drone.mass, self.drone.inertia,
+                                                    self.drone.max_thrust, self.drone.linear_drag, g)
+        self.mixer = Mixer(self.drone.rotor_positions, self.drone.spin_sign, self.drone.yaw_torque_coeff,
+                           self.drone.max_thrust)
+        self.clearance = clearance
+        self.contacts = ContactMonitor(model, self.drone.geom_ids)
+        self.log = FlightLog()
+        self.last_reference: FlatState | None = None
+        self._rng = np.random.default_rng([cfg.seed, 7919])
+
+    @classmethod
+    def from_world(cls, world, cfg: ScenarioConfig, clearance: ClearanceMonitor | None = None) -> "Flight":
+        return cls(world.model, world.data, cfg, clearance)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def state(self) -> DroneState:
+        return self.drone.state(self.data)
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    def start(self, position: np.ndarray, yaw: float = 0.0) -> None:
+        """Put the drone at rest at `position` (hover thrust already spun up) and hold there."""
+        self.drone.set_pose(self.model, self.data, np.asarray(position, float), yaw)
+        self.last_reference = Hold(np.asarray(position, float), yaw).sample(0.0)
+
+    # ------------------------------------------------------------------ cycle
+    def step(self, ref: FlatState) -> None:
+        """One control period: control from the current state, physics substeps, log and checks."""
+        s = self.drone.state(self.data)
+        out = self.controller.compute(s.position, s.velocity, s.R, s.omega, ref)
+        cmd = self.mixer.mix(out.thrust, out.torque)
+        clearance = self.clearance(s.position) if self.clearance is not None else math.nan
+        row = np.concatenate([[self.data.time], s.position, s.quat, s.velocity, s.omega, ref.position,
+                              ref.velocity, [ref.yaw], cmd, self.drone.motor_thrusts(self.data), [clearance]])
+        self.log.append(row)
+        reason = divergence_reason(s, self.cfg.sim.divergence_tilt_deg)
+        if reason is not None:
+            msg = f"flight diverged at t={self.data.time:.3f}s: {reason}; the log keeps {len(self.log)} steps"
+            self.log.notes.append(msg)
+            raise FlightDiverged(msg, self.log)
+        self.drone.set_motor_commands(self.data, cmd)
+        mujoco.mj_step(self.model, self.data, self.substeps)
+        self.last_reference = ref
+        events = self.contacts.update(self.data)
+        if events:
+            self.log.events.extend(events)
+
+    def fly(self, trajectory: Trajectory, extra_time: float = 0.0) -> FlightLog:
+        """Track `trajectory` from its start for its duration (+ `extra_time` holding its end)."""
+        start = len(self.log)
+        n = int(math.ceil((trajectory.duration + extra_time) / self.control_dt - 1e-9))
+        for k in range(n):
+            self.step(trajectory.sample(k * self.control_dt))
+        self.last_reference = trajectory.sample(trajectory.duration)
+        return self.log.slice_from(start)
+
+    def hover(self, seconds: float) -> FlightLog:
+        """Hold the last reference for `seconds`."""
+        return self.fly(Hold(self.last_reference.position, self.last_reference.yaw, seconds))
+
+    def go_to(self, position: np.ndarray, yaw: float) -> FlightLog:
+        """Rest-to-rest straight move at the configured planner limits (take-off, scripted flights)."""
+        p = self.cfg.planner
+        move = MinJerkMove.within_limits(self.last_reference.position, position, self.last_reference.yaw, yaw,
+                                         p.max_vel, p.max_acc, p.max_jerk, math.radians(p.max_yaw_rate_deg),
+                                         math.radians(p.max_yaw_acc_deg))
+        return self.fly(move)
+
+    def arrived(self, target: FlatState) -> bool:
+        """Position, yaw and speed inside the control tolerances right now."""
+        c = self.cfg.control
+        s = self.drone.state(self.data)
+        return (float(np.linalg.norm(s.position - target.position)) < c.arrive_pos_tol
+                and abs(wrap_angle(s.yaw - target.yaw)) < math.radians(c.arrive_yaw_tol_deg)
+                and float(np.linalg.norm(s.velocity)) < c.arrive_speed_tol)
+
+    def wait_until_arrived(self, target: FlatState | None = None, timeout: float | None = None) -> bool:
+        """Hold `target` (default: the end of the last trajectory) until the drone has stayed inside
+        the tolerances for `control.settle_time`; False (and a log note) after the timeout."""
+        c = self.cfg.control
+        target = target if target is not None else self.last_reference
+        hold = Hold(target.position, target.yaw).sample(0.0)
+        timeout = c.arrive_timeout if timeout is None else timeout
+        settled = 0.0
+        waited = 0.0
+        while waited <= timeout + 1e-9:
+            if self.arrived(hold):
+                if settled >= c.settle_time - 1e-9:
+                    return True
+                settled += self.control_dt
+            else:
+                settled = 0.0
+            self.step(hold)
+            waited += self.control_dt
+        self.log.notes.append(f"t={self.time:.2f}s: did not settle at {np.round(target.position, 3).tolist()} "
+                              f"within {timeout:g}s")
+        return False
+
+    # ------------------------------------------------------------------ camera
+    def sync(self) -> None:
+        """Recompute kinematics for the current state, so camera poses and renders match qpos."""
+        mujoco.mj_forward(self.model, self.data)
+
+    def camera_pose(self) -> np.ndarray:
+        """Exact T_wc (OpenCV) of drone_cam at the current simulated state."""
+        self.sync()
+        return self.drone.camera_pose(self.data)
+
+    def estimated_camera_pose(self, T_wc: np.ndarray | None = None) -> np.ndarray:
+        """T_wc with the configured pose noise (sim.pose_noise_pos_m, sim.pose_noise_rot_deg)."""
+        T = (self.camera_pose() if T_wc is None else np.asarray(T_wc, float)).copy()
+        sp, sr = self.cfg.sim.pose_noise_pos_m, math.radians(self.cfg.sim.pose_noise_rot_deg)
+        if sp > 0:
+            T[:3, 3] += self._rng.normal(0.0, sp, 3)
+        if sr > 0:
+            T[:3, :3] = T[:3, :3] @ Rotation.from_rotvec(self._rng.normal(0.0, sr, 3)).as_matrix()
+        return T

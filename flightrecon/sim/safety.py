@@ -1,0 +1,105 @@
+"""Flight safety monitors: clearance to the scene, contacts with it, and divergence of the state.
+
+Clearance comes from the scene's distance field (planning.distance_field), evaluated at the drone's
+center minus the radius of the sphere that encloses the frame and rotors, so it is the distance from
+the drone's body to the nearest surface (negative: the sphere overlaps the scene). Contacts are
+MuJoCo's own contacts between a drone geom and any other geom: one event when a pair starts
+touching, not one per step. Divergence (a non-finite state or a tilt beyond the limit) raises
+`FlightDiverged`, which carries the log recorded so far.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from flightrecon.errors import FlightReconError
+from flightrecon.sim.quadrotor import DroneState
+
+
+class FlightDiverged(FlightReconError):
+    """The simulated drone left the envelope the controller can recover from; `log` keeps the record."""
+
+    def __init__(self, message: str, log=None) -> None:
+        super().__init__(message)
+        self.log = log
+
+
+class ClearanceMonitor:
+    """Distance (m) from the drone's enclosing sphere to the nearest scene surface."""
+
+    def __init__(self, field, body_radius: float) -> None:
+        self.field = field
+        self.body_radius = float(body_radius)
+
+    def __call__(self, position: np.ndarray) -> float:
+        return float(self.field.distance(np.asarray(position, float).reshape(1, 3))[0]) - self.body_radius
+
+
+@dataclass(frozen=True)
+class ContactEvent:
+    time: float
+    drone_geom: str
+    other_geom: str
+    position: tuple[float, float, float]
+    penetration: float  # m, positive when the geoms overlap
+
+    def describe(self) -> str:
+        return (f"t={self.time:.3f}s contact {self.drone_geom} <-> {self.other_geom} at "
+                f"({self.position[0]:.2f}, {self.position[1]:.2f}, {self.position[2]:.2f}), "
+                f"penetration {1000 * self.penetration:.1f} mm")
+
+
+class ContactMonitor:
+    """Turns MuJoCo's contact list into start-of-contact events between the drone and the scene."""
+
+    def __init__(self, model: mujoco.MjModel, drone_geom_ids: np.ndarray) -> None:
+        self.model = model
+        self.is_drone = np.zeros(model.ngeom, bool)
+        self.is_drone[drone_geom_ids] = True
+        self.active: set[tuple[int, int]] = set()
+
+    def _name(self, gid: int) -> str:
+        name = mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_GEOM, gid)
+        if name:
+            return name
+        body = mujoco.mj_id2name(self.model, mujoco.mjtObj.mjOBJ_BODY, self.model.geom_bodyid[gid])
+        return f"geom {gid} of body {body or self.model.geom_bodyid[gid]}"
+
+    def update(self, data: mujoco.MjData) -> list[ContactEvent]:
+        """New contacts since the last call (pairs still touching are not reported again)."""
+        n = data.ncon
+        if n == 0:
+            self.active.clear()
+            return []
+        con = data.contact
+        g1, g2, dist = con.geom1[:n], con.geom2[:n], con.dist[:n]
+        mine = (self.is_drone[g1] ^ self.is_drone[g2]) & (dist <= 0.0)
+        current: set[tuple[int, int]] = set()
+        events = []
+        for k in np.flatnonzero(mine):
+            a, b = (int(g1[k]), int(g2[k])) if self.is_drone[g1[k]] else (int(g2[k]), int(g1[k]))
+            pair = (a, b)
+            if pair in current:
+                continue
+            current.add(pair)
+            if pair not in self.active:
+                pos = con.pos[k]
+                events.append(ContactEvent(float(data.time), self._name(a), self._name(b),
+                                           (float(pos[0]), float(pos[1]), float(pos[2])), float(-dist[k])))
+        self.active = current
+        return events
+
+
+def divergence_reason(state: DroneState, max_tilt_deg: float) -> str | None:
+    """Why the state is beyond recovery, or None when it is fine."""
+    if not (np.all(np.isfinite(state.position)) and np.all(np.isfinite(state.velocity))
+            and np.all(np.isfinite(state.quat)) and np.all(np.isfinite(state.omega))):
+        return "the simulated state holds NaN or inf"
+    tilt = math.degrees(state.tilt)
+    if tilt > max_tilt_deg:
+        return f"the drone tilted {tilt:.0f} deg, beyond the {max_tilt_deg:.0f} deg limit (sim.divergence_tilt_deg)"
+    return None

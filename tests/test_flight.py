@@ -1,0 +1,147 @@
+"""The quadrotor flying in the fixed-rate cycle in a small box world: hover, tracking, saturation,
+contacts, divergence, and the camera mount."""
+
+import math
+
+import mujoco
+import numpy as np
+import pytest
+
+from flightrecon.config import load_config
+from flightrecon.control.reference_paths import FigureEight, MinJerkMove
+from flightrecon.control.trajectory import Hold
+from flightrecon.geometry import camera_pose_from_body, make_pose
+from flightrecon.sim.flight import Flight
+from flightrecon.sim.quadrotor import DroneHandle, add_quadrotor
+from flightrecon.sim.safety import FlightDiverged
+
+WALL_X = 2.0  # inner face of the wall in front of the drone
+
+
+def box_world(cfg):
+    """Floor plane and one wall (a box whose inner face is at x = WALL_X), with the drone."""
+    spec = mujoco.MjSpec()
+    spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[10, 10, 0.1])
+    spec.worldbody.add_geom(name="wall", type=mujoco.mjtGeom.mjGEOM_BOX, size=[0.1, 3.0, 1.5],
+                            pos=[WALL_X + 0.1, 0.0, 1.5])
+    add_quadrotor(spec, cfg)
+    model = spec.compile()
+    return model, mujoco.MjData(model)
+
+
+def flight(*overrides, start=(0.0, 0.0, 1.0), yaw=0.0):
+    cfg = load_config(None, list(overrides))
+    model, data = box_world(cfg)
+    f = Flight(model, data, cfg)
+    f.start(np.array(start), yaw)
+    return f
+
+
+def yaw_series(log):
+    q = log.block("qw", "qx", "qy", "qz")
+    return np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]), 1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2))
+
+
+def test_model_parameters_come_from_config():
+    cfg = load_config(None, ["drone.mass=1.4", "drone.arm_length=0.2", "drone.max_motor_thrust=9.0",
+                             "drone.motor_time_constant=0.05", "drone.linear_drag=0.5"])
+    model, _ = box_world(cfg)
+    h = DroneHandle(model)
+    assert h.mass == pytest.approx(1.4) and h.max_thrust == pytest.approx(9.0)
+    assert h.linear_drag == pytest.approx(0.5)
+    np.testing.assert_allclose(np.linalg.norm(h.rotor_positions[:, :2], axis=1), 0.2)
+    assert np.all(model.actuator_dynprm[h.motor_ids, 0] == pytest.approx(0.05))
+    assert model.dof_damping[h.qvel_adr + 3:h.qvel_adr + 6].max() == 0.0  # rotation is not damped
+
+
+def test_take_off_then_hover_holds_within_1cm_and_1deg():
+    f = flight(start=(0.5, -0.3, 0.05), yaw=0.4)
+    target = np.array([0.5, -0.3, 1.2])
+    f.go_to(target, 0.4)
+    assert f.wait_until_arrived()
+    log = f.hover(10.0)
+    assert log["t"][-1] - log["t"][0] >= 10.0 - 2 * f.control_dt
+    assert np.linalg.norm(log.positions - target, axis=1).max() < 0.01
+    assert np.degrees(np.abs(yaw_series(log) - 0.4)).max() < 1.0
+
+
+def test_smooth_step_is_tracked_without_overshoot():
+    f = flight()
+    move = MinJerkMove.within_limits([0, 0, 1.0], [1.5, 0.5, 1.4], 0.0, 1.0, 1.0, 2.0, 8.0, 1.5, 3.0)
+    log = f.fly(move, extra_time=3.0)
+    assert log.tracking_rms() < 0.05
+    # Overshoot bound: the drone never passes the goal by more than 2 cm along the move direction.
+    d = (move.p1 - move.p0) / np.linalg.norm(move.p1 - move.p0)
+    assert ((log.positions - move.p1) @ d).max() < 0.02
+    assert np.linalg.norm(log.positions[-1] - move.p1) < 0.01
+    assert abs(yaw_series(log)[-1] - 1.0) < math.radians(1.0)
+
+
+@pytest.mark.slow
+def test_figure_eight_is_tracked():
+    f = flight()
+    fig8 = FigureEight(np.array([0.0, 0.0, 1.0]), 1.0, 0.8, 6.0, laps=2.0, ramp=2.0)
+    log = f.fly(fig8)
+    err = np.linalg.norm(log.positions - log.reference_positions, axis=1)
+    assert log.tracking_rms() < 0.05
+    assert err.max() < 0.08
+
+
+def test_thrust_saturation_does_not_flip_the_drone():
+    # Weak motors (thrust-to-weight 1.36) and a 4 m jump of the reference: thrust limits bind.
+    f = flight("drone.max_motor_thrust=4.0")
+    log = f.fly(Hold(np.array([-4.0, 3.0, 2.5]), 1.5, 12.0))
+    cmd = log.block("cmd0", "cmd1", "cmd2", "cmd3")
+    assert (cmd >= 4.0 - 1e-9).any(axis=1).sum() > 20  # saturated for a while
+    R22 = 1 - 2 * (log["qx"] ** 2 + log["qy"] ** 2)
+    assert np.degrees(np.arccos(np.clip(R22, -1, 1))).max() < 50.0  # max_tilt 35 deg + transients
+    assert np.linalg.norm(log.positions[-1] - [-4.0, 3.0, 2.5]) < 0.1
+
+
+def test_flying_into_a_wall_records_a_contact():
+    f = flight()
+    move = MinJerkMove.within_limits([0, 0, 1.0], [WALL_X + 0.5, 0.0, 1.0], 0.0, 0.0, 0.3, 1.0, 4.0, 1.0, 1.0)
+    try:
+        f.fly(move, extra_time=1.0)
+    except FlightDiverged:
+        pass  # a crash may tip the drone over; the contact must be logged either way
+    events = f.log.events
+    assert events, "no contact recorded"
+    first = events[0]
+    assert first.other_geom == "wall" and first.drone_geom.startswith("drone_")
+    assert first.position[0] == pytest.approx(WALL_X, abs=0.02)
+    # The drone touched first when its front reached the wall: center one body radius away.
+    row = np.searchsorted(f.log["t"], first.time) - 1
+    assert WALL_X - f.log["x"][row] < f.cfg.drone.body_radius + 0.02
+
+
+def test_divergence_stops_with_a_message_and_keeps_the_log():
+    f = flight()
+    f.hover(0.5)
+    h = f.drone
+    f.data.qvel[h.qvel_adr + 3] = 200.0  # violent roll
+    with pytest.raises(FlightDiverged, match="tilted") as exc:
+        f.hover(2.0)
+    assert len(exc.value.log) > 100 and exc.value.log is f.log
+    assert f.log.notes and "diverged" in f.log.notes[0]
+
+
+@pytest.mark.parametrize("pitch", [0.0, 25.0])
+def test_camera_pose_follows_the_body_and_sees_past_the_drone(pitch):
+    f = flight(f"camera.pitch_deg={pitch}", "camera.width=64", "camera.height=48", start=(0.0, 0.0, 1.0))
+    f.fly(Hold(np.array([0.2, 0.1, 1.1]), 0.3, 0.5))
+    s = f.state
+    T_wc = f.camera_pose()
+    expected = camera_pose_from_body(make_pose(s.R, s.position), f.drone.camera_offset, pitch)
+    np.testing.assert_allclose(T_wc, expected, atol=1e-9)
+    # Depth of the wall straight ahead: z-depth along the optical axis, no drone geometry in view.
+    model, data = f.model, f.data
+    with mujoco.Renderer(model, 48, 64) as r:
+        r.enable_depth_rendering()
+        r.update_scene(data, camera="drone_cam")
+        depth = r.render()
+    ray = T_wc[:3, 2]
+    expected_center = (WALL_X - T_wc[0, 3]) / ray[0] if pitch == 0.0 else None
+    if expected_center is not None:
+        assert depth[22:26, 30:34].mean() == pytest.approx(expected_center, abs=0.01)
+    assert depth.min() > 0.5  # nothing of the drone itself (all within 0.25 m) is rendered
