@@ -38,6 +38,9 @@ class SceneConfig:
     unit_scale: float = _f(1.0, 1e-6, 1e6, doc="multiplies the file's coordinates to get meters")
     up_axis: str = _f("z", choices=("z", "y"), doc="up axis of the file; y-up files are rotated to z-up")
     cache_dir: str = _f("", doc="where baked assets are cached; empty: ~/.cache/flightrecon")
+    collision_voxel: float = _f(0.05, 0.005, 1.0, doc="voxel size of the scene's collision boxes (m)")
+    ambient: float = _f(0.3, 0.0, 1.0, doc="share of the scene's color that comes from the headlight's "
+                        "ambient instead of emission; rendered scene colors equal the mesh colors either way")
 
 
 @dataclass(frozen=True)
