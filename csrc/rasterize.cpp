@@ -1,0 +1,665 @@
+// 2DGS CPU rasterizer: projection, tile binning, per-tile depth sort, front-to-back blending with
+// early termination, and the analytic backward pass (optionally the FisherRF squared mode).
+//
+// The equations are those of flightrecon/render/projection.py (the readable statement, tested
+// against gsplat) and of the 2DGS section of spec/baselines.md. Per camera: project every splat
+// (parallel over splats), bin into 16x16 tiles in splat order, stable-sort each tile by depth
+// (ties keep the lower index), then blend each tile (parallel over tiles). The blend loops run
+// splats outside and the tile's pixels inside, branch-free, so the compiler vectorizes them over
+// pixels; only the rows a splat's box covers are visited.
+//
+// Determinism: every float sum has a fixed order independent of the thread count. The backward
+// writes each (tile, splat) pair's gradient into its own slot and reduces the slots per splat in
+// tile order; cameras are reduced in camera order.
+
+#include <torch/extension.h>
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+namespace {
+
+constexpr int TS = 16;          // tile side
+constexpr int TP = TS * TS;     // pixels per tile
+constexpr double ALPHA_MIN = 1.0 / 255.0;
+constexpr double ALPHA_MAX = 0.99;
+constexpr double T_MIN = 1e-4;
+constexpr double CUTOFF = 3.33;
+constexpr double FILTER_INV_SQ = 2.0;
+constexpr double FILTER_REACH = 2.36;
+constexpr double BOX_EPS = 1e-3;
+constexpr int NG = 11;           // per-pixel geometric gradient: T_u, T_v, T_w (9), means2d (2)
+constexpr int NSYM = NG * (NG + 1) / 2;
+
+// One camera's projected splats (struct of arrays over all N splats).
+template <typename S>
+struct Projected {
+  std::vector<S> M, m2d, depth, nrm, sign;
+  std::vector<int> rect;  // px0, py0, px1, py1 (inclusive); px0 > px1 when not binned
+  std::vector<int> radii;
+  explicit Projected(int64_t n)
+      : M(9 * n), m2d(2 * n), depth(n), nrm(3 * n), sign(n), rect(4 * n), radii(n) {}
+};
+
+struct Bins {
+  std::vector<int64_t> offsets;  // [tiles + 1]
+  std::vector<int32_t> ids;      // splat ids, per tile sorted by depth
+};
+
+struct Camera {
+  double R[9], t[3], K[9];
+};
+
+struct Settings {
+  int W, H, tiles_x, tiles_y;
+  double near, far;
+};
+
+template <typename S>
+void conic_box(const S* Tu, const S* Tv, const S* Tw, S cs, S& cx, S& cy, S& ex, S& ey, S& d) {
+  // Image of the circle u^2 + v^2 = cs^2 under (u, v, 1) -> M (u, v, 1): center and half extents.
+  const S tw0 = cs * Tw[0], tw1 = cs * Tw[1], tw2 = Tw[2];
+  d = tw0 * tw0 + tw1 * tw1 - tw2 * tw2;
+  if (d == 0) d = S(-1e-30);
+  const S tu0 = cs * Tu[0], tu1 = cs * Tu[1], tv0 = cs * Tv[0], tv1 = cs * Tv[1];
+  cx = (tu0 * tw0 + tu1 * tw1 - Tu[2] * tw2) / d;
+  cy = (tv0 * tw0 + tv1 * tw1 - Tv[2] * tw2) / d;
+  const S sx = (tu0 * tu0 + tu1 * tu1 - Tu[2] * Tu[2]) / d;
+  const S sy = (tv0 * tv0 + tv1 * tv1 - Tv[2] * Tv[2]) / d;
+  ex = std::sqrt(std::max(cx * cx - sx, S(1e-4)));
+  ey = std::sqrt(std::max(cy * cy - sy, S(1e-4)));
+}
+
+template <typename S>
+void project_camera(const S* means, const S* U, const S* V, const S* n, int64_t N,
+                    const Camera& cam, const Settings& st, Projected<S>& P) {
+#pragma omp parallel for schedule(static)
+  for (int64_t i = 0; i < N; ++i) {
+    S pc[3], uc[3], vc[3], nc[3];
+    for (int r = 0; r < 3; ++r) {
+      const double* Rr = cam.R + 3 * r;
+      pc[r] = S(Rr[0]) * means[3 * i] + S(Rr[1]) * means[3 * i + 1] + S(Rr[2]) * means[3 * i + 2] + S(cam.t[r]);
+      uc[r] = S(Rr[0]) * U[3 * i] + S(Rr[1]) * U[3 * i + 1] + S(Rr[2]) * U[3 * i + 2];
+      vc[r] = S(Rr[0]) * V[3 * i] + S(Rr[1]) * V[3 * i + 1] + S(Rr[2]) * V[3 * i + 2];
+      nc[r] = S(Rr[0]) * n[3 * i] + S(Rr[1]) * n[3 * i + 1] + S(Rr[2]) * n[3 * i + 2];
+    }
+    const S sgn = (nc[0] * pc[0] + nc[1] * pc[1] + nc[2] * pc[2]) < 0 ? S(1) : S(-1);
+    P.sign[i] = sgn;
+    for (int r = 0; r < 3; ++r) P.nrm[3 * i + r] = sgn * nc[r];
+    S* M = &P.M[9 * i];
+    for (int r = 0; r < 3; ++r) {
+      const double* Kr = cam.K + 3 * r;
+      M[3 * r + 0] = S(Kr[0]) * uc[0] + S(Kr[1]) * uc[1] + S(Kr[2]) * uc[2];
+      M[3 * r + 1] = S(Kr[0]) * vc[0] + S(Kr[1]) * vc[1] + S(Kr[2]) * vc[2];
+      M[3 * r + 2] = S(Kr[0]) * pc[0] + S(Kr[1]) * pc[1] + S(Kr[2]) * pc[2];
+    }
+    const S z = pc[2];
+    P.depth[i] = z;
+    int* rect = &P.rect[4 * i];
+    rect[0] = 1; rect[2] = 0;
+    P.radii[i] = 0;
+    const S reach = S(CUTOFF) * std::sqrt(uc[2] * uc[2] + vc[2] * vc[2]);
+    if (!(z > S(st.near) && z < S(st.far) && z - reach > 0)) continue;
+    S cx, cy, ex, ey, d;
+    conic_box(M, M + 3, M + 6, S(1), cx, cy, ex, ey, d);
+    P.m2d[2 * i] = cx;
+    P.m2d[2 * i + 1] = cy;
+    S bx, by, bex, bey, bd;
+    conic_box(M, M + 3, M + 6, S(CUTOFF), bx, by, bex, bey, bd);
+    const S lox = std::min(bx - bex, cx - S(FILTER_REACH)), hix = std::max(bx + bex, cx + S(FILTER_REACH));
+    const S loy = std::min(by - bey, cy - S(FILTER_REACH)), hiy = std::max(by + bey, cy + S(FILTER_REACH));
+    if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) continue;
+    P.radii[i] = int(std::ceil(S(CUTOFF) * std::max(ex, ey)));
+    // Pixel i is covered when lo <= i + 0.5 <= hi; clamp in double before converting to int.
+    rect[0] = int(std::max(0.0, std::ceil(double(lox) - 0.5 - BOX_EPS)));
+    rect[1] = int(std::max(0.0, std::ceil(double(loy) - 0.5 - BOX_EPS)));
+    rect[2] = int(std::min(double(st.W - 1), std::floor(double(hix) - 0.5 + BOX_EPS)));
+    rect[3] = int(std::min(double(st.H - 1), std::floor(double(hiy) - 0.5 + BOX_EPS)));
+  }
+}
+
+template <typename S>
+Bins bin_and_sort(const Projected<S>& P, int64_t N, const Settings& st) {
+  const int tiles = st.tiles_x * st.tiles_y;
+  Bins b;
+  b.offsets.assign(tiles + 1, 0);
+  for (int64_t i = 0; i < N; ++i) {
+    const int* r = &P.rect[4 * i];
+    if (r[0] > r[2] || r[1] > r[3]) continue;
+    for (int ty = r[1] / TS; ty <= r[3] / TS; ++ty)
+      for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx) ++b.offsets[ty * st.tiles_x + tx + 1];
+  }
+  for (int t = 0; t < tiles; ++t) b.offsets[t + 1] += b.offsets[t];
+  b.ids.resize(b.offsets[tiles]);
+  std::vector<int64_t> fill(b.offsets.begin(), b.offsets.end() - 1);
+  for (int64_t i = 0; i < N; ++i) {
+    const int* r = &P.rect[4 * i];
+    if (r[0] > r[2] || r[1] > r[3]) continue;
+    for (int ty = r[1] / TS; ty <= r[3] / TS; ++ty)
+      for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx) b.ids[fill[ty * st.tiles_x + tx]++] = int32_t(i);
+  }
+  const S* depth = P.depth.data();
+#pragma omp parallel for schedule(dynamic, 4)
+  for (int t = 0; t < tiles; ++t)
+    std::stable_sort(b.ids.begin() + b.offsets[t], b.ids.begin() + b.offsets[t + 1],
+                     [depth](int32_t a, int32_t c) { return depth[a] < depth[c]; });
+  return b;
+}
+
+// Per-pixel geometry of one splat at one pixel: local (u, v), depth z, and alpha before the gates.
+template <typename S>
+struct Hit {
+  S u, v, z, q2, rho3, rho2, g, a;
+  bool ok;
+};
+
+template <typename S>
+inline Hit<S> hit(const S* M, S mx, S my, S o, S x, S y, S near) {
+  Hit<S> h;
+  const S k0 = x * M[6] - M[0], k1 = x * M[7] - M[1], k2 = x * M[8] - M[2];
+  const S l0 = y * M[6] - M[3], l1 = y * M[7] - M[4], l2 = y * M[8] - M[5];
+  const S q0 = k1 * l2 - k2 * l1, q1 = k2 * l0 - k0 * l2, q2 = k0 * l1 - k1 * l0;
+  const bool nz = q2 != 0;
+  const S inv = S(1) / (nz ? q2 : S(1));
+  h.q2 = q2;
+  h.u = q0 * inv;
+  h.v = q1 * inv;
+  h.z = M[6] * h.u + M[7] * h.v + M[8];
+  h.rho3 = std::min(h.u * h.u + h.v * h.v, S(1e4));
+  const S dx = x - mx, dy = y - my;
+  h.rho2 = S(FILTER_INV_SQ) * (dx * dx + dy * dy);
+  h.g = std::exp(S(-0.5) * std::min(h.rho3, h.rho2));
+  h.a = std::min(S(ALPHA_MAX), o * h.g);
+  h.ok = nz && h.z >= near && h.a >= S(ALPHA_MIN);
+  return h;
+}
+
+struct Flags {
+  bool normal, depth, dist;  // median depth is always produced: it costs two selects per pixel
+};
+
+template <typename S>
+struct FwdOut {
+  S *feat, *alpha, *normal, *zsum, *msum, *m2sum, *median;
+  int32_t *last, *medj;
+};
+
+template <typename S>
+void forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac, const S* feat,
+                  int D, const Settings& st, const Flags& fl, const FwdOut<S>& out) {
+  const int tx = tile % st.tiles_x, ty = tile / st.tiles_x;
+  alignas(64) S px[TP], py[TP], T[TP], act[TP], w[TP], zz[TP];
+  alignas(64) S accA[TP], accZ[TP], accM[TP], accM2[TP], medz[TP];
+  alignas(64) int32_t last[TP], medj[TP];
+  std::vector<S> accF(size_t(D) * TP, S(0)), accN(fl.normal ? 3 * TP : 0, S(0));
+  for (int p = 0; p < TP; ++p) {
+    const int x = tx * TS + (p % TS), y = ty * TS + p / TS;
+    px[p] = S(x) + S(0.5);
+    py[p] = S(y) + S(0.5);
+    act[p] = (x < st.W && y < st.H) ? S(1) : S(0);
+    T[p] = S(1);
+    accA[p] = accZ[p] = accM[p] = accM2[p] = medz[p] = S(0);
+    last[p] = 0;
+    medj[p] = -1;
+  }
+  const S near = S(st.near), mscale = S(st.far / (st.far - st.near));
+  const int64_t b0 = B.offsets[tile], b1 = B.offsets[tile + 1];
+  for (int64_t jj = b0; jj < b1; ++jj) {
+    if (((jj - b0) & 15) == 0 && jj > b0) {
+      S alive = 0;
+      for (int p = 0; p < TP; ++p) alive += act[p];
+      if (alive == 0) break;
+    }
+    const int i = B.ids[jj];
+    const int* r = &P.rect[4 * i];
+    const int p0 = std::max(r[1] - ty * TS, 0) * TS, p1 = (std::min(r[3] - ty * TS, TS - 1) + 1) * TS;
+    const S* M = &P.M[9 * i];
+    const S mx = P.m2d[2 * i], my = P.m2d[2 * i + 1], o = opac[i];
+    const int32_t j = int32_t(jj - b0);
+    int any = 0;
+#pragma omp simd reduction(| : any)
+    for (int p = p0; p < p1; ++p) {
+      const Hit<S> h = hit(M, mx, my, o, px[p], py[p], near);
+      const S testT = T[p] * (S(1) - h.a);
+      const bool ok = h.ok && act[p] != 0;
+      const bool stop = ok && testT < S(T_MIN);
+      const bool blend = ok && !stop;
+      const S wp = blend ? h.a * T[p] : S(0);
+      w[p] = wp;
+      zz[p] = blend ? h.z : near;
+      const bool med = blend && T[p] > S(0.5);
+      medz[p] = med ? h.z : medz[p];
+      medj[p] = med ? j : medj[p];
+      T[p] = blend ? testT : T[p];
+      act[p] = stop ? S(0) : act[p];
+      last[p] = blend ? j + 1 : last[p];
+      accA[p] += wp;
+      any |= int(blend);
+    }
+    if (!any) continue;
+    for (int d = 0; d < D; ++d) {
+      const S f = feat[int64_t(i) * D + d];
+      S* acc = &accF[size_t(d) * TP];
+#pragma omp simd
+      for (int p = p0; p < p1; ++p) acc[p] += w[p] * f;
+    }
+    if (fl.normal)
+      for (int k = 0; k < 3; ++k) {
+        const S nk = P.nrm[3 * i + k];
+        S* acc = &accN[size_t(k) * TP];
+#pragma omp simd
+        for (int p = p0; p < p1; ++p) acc[p] += w[p] * nk;
+      }
+    if (fl.depth || fl.dist) {
+#pragma omp simd
+      for (int p = p0; p < p1; ++p) {
+        accZ[p] += w[p] * zz[p];
+        const S m = mscale * (S(1) - near / zz[p]);
+        accM[p] += w[p] * m;
+        accM2[p] += w[p] * m * m;
+      }
+    }
+  }
+  for (int p = 0; p < TP; ++p) {
+    const int x = tx * TS + (p % TS), y = ty * TS + p / TS;
+    if (x >= st.W || y >= st.H) continue;
+    const int64_t q = int64_t(y) * st.W + x;
+    for (int d = 0; d < D; ++d) out.feat[q * D + d] = accF[size_t(d) * TP + p];
+    out.alpha[q] = accA[p];
+    if (fl.normal)
+      for (int k = 0; k < 3; ++k) out.normal[q * 3 + k] = accN[size_t(k) * TP + p];
+    if (fl.depth || fl.dist) { out.zsum[q] = accZ[p]; out.msum[q] = accM[p]; out.m2sum[q] = accM2[p]; }
+    out.median[q] = medz[p];
+    out.last[q] = last[p];
+    out.medj[q] = medj[p];
+  }
+}
+
+Camera camera_of(const torch::Tensor& viewmats, const torch::Tensor& Ks, int64_t c) {
+  auto vm = viewmats[c].to(torch::kFloat64).contiguous();
+  auto k = Ks[c].to(torch::kFloat64).contiguous();
+  const double* v = vm.data_ptr<double>();
+  const double* kk = k.data_ptr<double>();
+  Camera cam;
+  for (int r = 0; r < 3; ++r) {
+    for (int q = 0; q < 3; ++q) cam.R[3 * r + q] = v[4 * r + q];
+    cam.t[r] = v[4 * r + 3];
+  }
+  for (int q = 0; q < 9; ++q) cam.K[q] = kk[q];
+  return cam;
+}
+
+Settings settings_of(int64_t W, int64_t H, double near, double far) {
+  return Settings{int(W), int(H), int((W + TS - 1) / TS), int((H + TS - 1) / TS), near, far};
+}
+
+template <typename S>
+std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, torch::Tensor V,
+                                        torch::Tensor n, torch::Tensor opac, torch::Tensor feats,
+                                        torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
+                                        double near, double far, const Flags& fl) {
+  const int64_t N = means.size(0), C = viewmats.size(0), D = feats.size(2);
+  const bool shared = feats.size(0) == 1;
+  auto opt = means.options();
+  auto feat_img = torch::zeros({C, H, W, D}, opt);
+  auto alpha = torch::zeros({C, H, W}, opt);
+  auto normal = torch::zeros({fl.normal ? C : 0, H, W, 3}, opt);
+  const bool dz = fl.depth || fl.dist;
+  auto zsum = torch::zeros({dz ? C : 0, H, W}, opt);
+  auto msum = torch::zeros({dz ? C : 0, H, W}, opt);
+  auto m2sum = torch::zeros({dz ? C : 0, H, W}, opt);
+  auto median = torch::zeros({C, H, W}, opt);
+  auto iopt = opt.dtype(torch::kInt32);
+  auto last = torch::zeros({C, H, W}, iopt);
+  auto medj = torch::zeros({C, H, W}, iopt);
+  auto radii = torch::zeros({C, N}, iopt);
+  const Settings st = settings_of(W, H, near, far);
+  const int tiles = st.tiles_x * st.tiles_y;
+  Projected<S> P(N);
+  for (int64_t c = 0; c < C; ++c) {
+    const Camera cam = camera_of(viewmats, Ks, c);
+    project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), N, cam, st, P);
+    std::copy(P.radii.begin(), P.radii.end(), radii.data_ptr<int32_t>() + c * N);
+    const Bins B = bin_and_sort(P, N, st);
+    const int64_t HW = H * W;
+    FwdOut<S> out{feat_img.data_ptr<S>() + c * HW * D, alpha.data_ptr<S>() + c * HW,
+                  fl.normal ? normal.data_ptr<S>() + c * HW * 3 : nullptr,
+                  dz ? zsum.data_ptr<S>() + c * HW : nullptr, dz ? msum.data_ptr<S>() + c * HW : nullptr,
+                  dz ? m2sum.data_ptr<S>() + c * HW : nullptr, median.data_ptr<S>() + c * HW,
+                  last.data_ptr<int32_t>() + c * HW, medj.data_ptr<int32_t>() + c * HW};
+    const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
+    const S* op = opac.data_ptr<S>();
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int t = 0; t < tiles; ++t) forward_tile<S>(t, P, B, op, f, int(D), st, fl, out);
+  }
+  return {feat_img, alpha, normal, zsum, msum, m2sum, median, last, medj, radii};
+}
+
+// ---------------------------------------------------------------- backward
+
+template <typename S>
+struct BwdIn {
+  const S *feat, *alpha, *normal, *zsum, *msum, *m2sum;          // forward outputs
+  const int32_t *last, *medj;
+  const S *gF, *gA, *gN, *gZ, *gM, *gM2, *gMed;                   // upstream gradients
+};
+
+// Slot layout per (tile, splat): geometric 11 (T_u, T_v, T_w, means2d), opacity, normal 3, feat D.
+// In Fisher mode: NSYM outer-product entries, sum of dL/do^2, sum of w^2.
+template <typename S, bool FISHER>
+void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac, const S* feat,
+                   int D, const Settings& st, const Flags& fl, const BwdIn<S>& in, int G, S* slots) {
+  const int tx = tile % st.tiles_x, ty = tile / st.tiles_x;
+  alignas(64) S px[TP], py[TP], T[TP], Pre[TP], Tot[TP], s[TP], w[TP];
+  alignas(64) S gA[TP], gZ[TP], gM[TP], gM2[TP], gMed[TP];
+  alignas(64) int32_t last[TP], medj[TP];
+  alignas(64) S gg[NG][TP];
+  std::vector<S> gF(size_t(D) * TP, S(0)), gN(3 * TP, S(0));
+  int maxlast = 0;
+  for (int p = 0; p < TP; ++p) {
+    const int x = tx * TS + (p % TS), y = ty * TS + p / TS;
+    px[p] = S(x) + S(0.5);
+    py[p] = S(y) + S(0.5);
+    T[p] = S(1);
+    Pre[p] = S(0);
+    gA[p] = gZ[p] = gM[p] = gM2[p] = gMed[p] = Tot[p] = S(0);
+    last[p] = 0;
+    medj[p] = -1;
+    if (x >= st.W || y >= st.H) continue;
+    const int64_t q = int64_t(y) * st.W + x;
+    S tot = 0;
+    for (int d = 0; d < D; ++d) {
+      gF[size_t(d) * TP + p] = in.gF[q * D + d];
+      tot += in.gF[q * D + d] * in.feat[q * D + d];
+    }
+    gA[p] = in.gA[q];
+    tot += gA[p] * in.alpha[q];
+    if (fl.normal)
+      for (int k = 0; k < 3; ++k) {
+        gN[size_t(k) * TP + p] = in.gN[q * 3 + k];
+        tot += in.gN[q * 3 + k] * in.normal[q * 3 + k];
+      }
+    if (fl.depth || fl.dist) {
+      gZ[p] = in.gZ[q]; gM[p] = in.gM[q]; gM2[p] = in.gM2[q];
+      tot += gZ[p] * in.zsum[q] + gM[p] * in.msum[q] + gM2[p] * in.m2sum[q];
+    }
+    gMed[p] = in.gMed[q];
+    Tot[p] = tot;
+    last[p] = in.last[q];
+    medj[p] = in.medj[q];
+    maxlast = std::max(maxlast, last[p]);
+  }
+  const S near = S(st.near), mscale = S(st.far / (st.far - st.near));
+  const S mder = S(st.far * st.near / (st.far - st.near));
+  const int64_t b0 = B.offsets[tile];
+  for (int32_t j = 0; j < maxlast; ++j) {
+    const int64_t jj = b0 + j;
+    const int i = B.ids[jj];
+    S* slot = slots + jj * G;
+    const int* r = &P.rect[4 * i];
+    const int p0 = std::max(r[1] - ty * TS, 0) * TS, p1 = (std::min(r[3] - ty * TS, TS - 1) + 1) * TS;
+    const S* M = &P.M[9 * i];
+    const S mx = P.m2d[2 * i], my = P.m2d[2 * i + 1], o = opac[i];
+    const S* f = feat + int64_t(i) * D;
+    const S* nr = &P.nrm[3 * i];
+#pragma omp simd
+    for (int p = p0; p < p1; ++p) s[p] = gA[p];
+    for (int d = 0; d < D; ++d) {
+      const S fd = f[d];
+      const S* g = &gF[size_t(d) * TP];
+#pragma omp simd
+      for (int p = p0; p < p1; ++p) s[p] += fd * g[p];
+    }
+    if (fl.normal)
+      for (int k = 0; k < 3; ++k) {
+        const S nk = nr[k];
+        const S* g = &gN[size_t(k) * TP];
+#pragma omp simd
+        for (int p = p0; p < p1; ++p) s[p] += nk * g[p];
+      }
+    S dO = 0, o2 = 0, w2 = 0;
+#pragma omp simd reduction(+ : dO, o2, w2)
+    for (int p = p0; p < p1; ++p) {
+      const Hit<S> h = hit(M, mx, my, o, px[p], py[p], near);
+      const bool blend = h.ok && j < last[p];
+      const S a = blend ? h.a : S(0);
+      const S zs = blend ? h.z : near;
+      const S m = mscale * (S(1) - near / zs);
+      const S dm = mder / (zs * zs);
+      const S wp = a * T[p];
+      const S sf = s[p] + gZ[p] * zs + gM[p] * m + gM2[p] * m * m;
+      Pre[p] += wp * sf;
+      const S Rest = Tot[p] - Pre[p];
+      const S dA = T[p] * sf - Rest / (S(1) - a);
+      const S dz = wp * (gZ[p] + gM[p] * dm + gM2[p] * S(2) * m * dm) + (j == medj[p] ? gMed[p] : S(0));
+      const bool free_a = blend && o * h.g < S(ALPHA_MAX);
+      const S dOp = free_a ? dA * h.g : S(0);
+      const S drho = free_a ? S(-0.5) * dA * a : S(0);
+      const bool use3 = h.rho3 <= h.rho2;
+      S du = use3 ? drho * S(2) * h.u : S(0);
+      S dv = use3 ? drho * S(2) * h.v : S(0);
+      const S dmx = use3 ? S(0) : drho * S(FILTER_INV_SQ) * S(-2) * (px[p] - mx);
+      const S dmy = use3 ? S(0) : drho * S(FILTER_INV_SQ) * S(-2) * (py[p] - my);
+      du += M[6] * dz;
+      dv += M[7] * dz;
+      const S inv = S(1) / (h.q2 != 0 ? h.q2 : S(1));
+      const S dq0 = du * inv, dq1 = dv * inv, dq2 = -(du * h.u + dv * h.v) * inv;
+      const S x = px[p], y = py[p];
+      const S k0 = x * M[6] - M[0], k1 = x * M[7] - M[1], k2 = x * M[8] - M[2];
+      const S l0 = y * M[6] - M[3], l1 = y * M[7] - M[4], l2 = y * M[8] - M[5];
+      // q = k x l: dk = l x dq, dl = dq x k
+      const S dk0 = l1 * dq2 - l2 * dq1, dk1 = l2 * dq0 - l0 * dq2, dk2 = l0 * dq1 - l1 * dq0;
+      const S dl0 = dq1 * k2 - dq2 * k1, dl1 = dq2 * k0 - dq0 * k2, dl2 = dq0 * k1 - dq1 * k0;
+      gg[0][p] = -dk0; gg[1][p] = -dk1; gg[2][p] = -dk2;
+      gg[3][p] = -dl0; gg[4][p] = -dl1; gg[5][p] = -dl2;
+      gg[6][p] = x * dk0 + y * dl0 + h.u * dz;
+      gg[7][p] = x * dk1 + y * dl1 + h.v * dz;
+      gg[8][p] = x * dk2 + y * dl2 + dz;
+      gg[9][p] = dmx;
+      gg[10][p] = dmy;
+      dO += dOp;
+      o2 += dOp * dOp;
+      w2 += wp * wp;
+      w[p] = wp;
+      T[p] = blend ? T[p] * (S(1) - a) : T[p];
+    }
+    if (FISHER) {
+      int e = 0;
+      for (int a1 = 0; a1 < NG; ++a1)
+        for (int a2 = a1; a2 < NG; ++a2, ++e) {
+          S acc = 0;
+#pragma omp simd reduction(+ : acc)
+          for (int p = p0; p < p1; ++p) acc += gg[a1][p] * gg[a2][p];
+          slot[e] = acc;
+        }
+      slot[NSYM] = o2;
+      slot[NSYM + 1] = w2;
+      continue;
+    }
+    for (int e = 0; e < NG; ++e) {
+      S acc = 0;
+#pragma omp simd reduction(+ : acc)
+      for (int p = p0; p < p1; ++p) acc += gg[e][p];
+      slot[e] = acc;
+    }
+    slot[NG] = dO;
+    if (fl.normal)
+      for (int k = 0; k < 3; ++k) {
+        const S* g = &gN[size_t(k) * TP];
+        S acc = 0;
+#pragma omp simd reduction(+ : acc)
+        for (int p = p0; p < p1; ++p) acc += w[p] * g[p];
+        slot[NG + 1 + k] = acc;
+      }
+    for (int d = 0; d < D; ++d) {
+      const S* g = &gF[size_t(d) * TP];
+      S acc = 0;
+#pragma omp simd reduction(+ : acc)
+      for (int p = p0; p < p1; ++p) acc += w[p] * g[p];
+      slot[NG + 4 + d] = acc;
+    }
+  }
+}
+
+// Sums each splat's slots in tile order into per-splat rows [N, G] (parallel over splats).
+template <typename S>
+std::vector<S> reduce_slots(const Bins& B, int64_t N, int G, const std::vector<S>& slots) {
+  const int64_t nis = int64_t(B.ids.size());
+  std::vector<int64_t> start(N + 1, 0);
+  for (int64_t e = 0; e < nis; ++e) ++start[B.ids[e] + 1];
+  for (int64_t i = 0; i < N; ++i) start[i + 1] += start[i];
+  std::vector<int64_t> order(nis), fill(start.begin(), start.end() - 1);
+  for (int64_t e = 0; e < nis; ++e) order[fill[B.ids[e]]++] = e;  // in tile order per splat
+  std::vector<S> rows(size_t(N) * G, S(0));
+#pragma omp parallel for schedule(static)
+  for (int64_t i = 0; i < N; ++i)
+    for (int64_t k = start[i]; k < start[i + 1]; ++k) {
+      const S* src = &slots[size_t(order[k]) * G];
+      S* dst = &rows[size_t(i) * G];
+      for (int g = 0; g < G; ++g) dst[g] += src[g];
+    }
+  return rows;
+}
+
+// Gradient w.r.t. (T_u, T_v, T_w) including the path through means2d (the conic center).
+template <typename S>
+void geometric_to_M(const S* M, const S* g11, S mx, S my, S* gM) {
+  const S tw0 = M[6], tw1 = M[7], tw2 = M[8];
+  S d = tw0 * tw0 + tw1 * tw1 - tw2 * tw2;
+  if (d == 0) d = S(-1e-30);
+  const S gmx = g11[9], gmy = g11[10];
+  const S twt[3] = {tw0, tw1, -tw2};
+  const S tut[3] = {M[0], M[1], -M[2]}, tvt[3] = {M[3], M[4], -M[5]};
+  for (int k = 0; k < 9; ++k) gM[k] = g11[k];
+  for (int k = 0; k < 3; ++k) {
+    gM[k] += gmx * twt[k] / d;
+    gM[3 + k] += gmy * twt[k] / d;
+    gM[6 + k] += (gmx * (tut[k] - S(2) * mx * twt[k]) + gmy * (tvt[k] - S(2) * my * twt[k])) / d;
+  }
+}
+
+template <typename S>
+std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, torch::Tensor V,
+                                         torch::Tensor n, torch::Tensor opac, torch::Tensor feats,
+                                         torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
+                                         double near, double far, const Flags& fl,
+                                         std::vector<torch::Tensor> fwd, std::vector<torch::Tensor> grads,
+                                         bool fisher) {
+  const int64_t N = means.size(0), C = viewmats.size(0), D = feats.size(2);
+  const bool shared = feats.size(0) == 1 && C > 1;
+  auto opt = means.options();
+  auto g_means = torch::zeros({N, 3}, opt), g_U = torch::zeros({N, 3}, opt);
+  auto g_V = torch::zeros({N, 3}, opt), g_n = torch::zeros({N, 3}, opt);
+  auto g_op = torch::zeros({N}, opt), g_feat = torch::zeros_like(feats);
+  auto fis_geo = torch::zeros({fisher ? C : 0, N, NSYM}, opt);
+  auto fis_o = torch::zeros({fisher ? C : 0, N}, opt), fis_w = torch::zeros({fisher ? C : 0, N}, opt);
+  const Settings st = settings_of(W, H, near, far);
+  const int tiles = st.tiles_x * st.tiles_y;
+  const int G = fisher ? NSYM + 2 : NG + 4 + int(D);
+  const int64_t HW = H * W;
+  const bool dz = fl.depth || fl.dist;
+  Projected<S> P(N);
+  for (int64_t c = 0; c < C; ++c) {
+    const Camera cam = camera_of(viewmats, Ks, c);
+    project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), N, cam, st, P);
+    const Bins B = bin_and_sort(P, N, st);
+    auto ptr = [&](const torch::Tensor& t, int64_t per) -> const S* {
+      return t.numel() ? t.data_ptr<S>() + c * HW * per : nullptr;
+    };
+    BwdIn<S> in{ptr(fwd[0], D), ptr(fwd[1], 1), fl.normal ? ptr(fwd[2], 3) : nullptr,
+                dz ? ptr(fwd[3], 1) : nullptr, dz ? ptr(fwd[4], 1) : nullptr, dz ? ptr(fwd[5], 1) : nullptr,
+                fwd[6].data_ptr<int32_t>() + c * HW, fwd[7].data_ptr<int32_t>() + c * HW,
+                ptr(grads[0], D), ptr(grads[1], 1), fl.normal ? ptr(grads[2], 3) : nullptr,
+                dz ? ptr(grads[3], 1) : nullptr, dz ? ptr(grads[4], 1) : nullptr,
+                dz ? ptr(grads[5], 1) : nullptr, ptr(grads[6], 1)};
+    const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
+    std::vector<S> slots(B.ids.size() * size_t(G), S(0));
+    const S* op = opac.data_ptr<S>();
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int t = 0; t < tiles; ++t) {
+      if (fisher) backward_tile<S, true>(t, P, B, op, f, int(D), st, fl, in, G, slots.data());
+      else backward_tile<S, false>(t, P, B, op, f, int(D), st, fl, in, G, slots.data());
+    }
+    const std::vector<S> rows = reduce_slots(B, N, G, slots);
+    if (fisher) {
+      S* fg = fis_geo.data_ptr<S>() + c * N * NSYM;
+      S* fo = fis_o.data_ptr<S>() + c * N;
+      S* fw = fis_w.data_ptr<S>() + c * N;
+#pragma omp parallel for schedule(static)
+      for (int64_t i = 0; i < N; ++i) {
+        for (int e = 0; e < NSYM; ++e) fg[i * NSYM + e] = rows[size_t(i) * G + e];
+        fo[i] = rows[size_t(i) * G + NSYM];
+        fw[i] = rows[size_t(i) * G + NSYM + 1];
+      }
+      continue;
+    }
+    S *gm = g_means.data_ptr<S>(), *gu = g_U.data_ptr<S>(), *gv = g_V.data_ptr<S>();
+    S *gn = g_n.data_ptr<S>(), *go = g_op.data_ptr<S>();
+    S* gf = g_feat.data_ptr<S>() + (shared ? 0 : c * N * D);
+#pragma omp parallel for schedule(static)
+    for (int64_t i = 0; i < N; ++i) {
+      const int* r = &P.rect[4 * i];
+      if (r[0] > r[2] || r[1] > r[3]) continue;
+      const S* row = &rows[size_t(i) * G];
+      S gM[9];
+      geometric_to_M(&P.M[9 * i], row, P.m2d[2 * i], P.m2d[2 * i + 1], gM);
+      // M = K [U_c V_c p_c]  ->  d cols = K^T dM; columns are U_c, V_c, p_c.
+      S gcol[3][3];
+      for (int jrow = 0; jrow < 3; ++jrow)
+        for (int col = 0; col < 3; ++col)
+          gcol[jrow][col] = S(cam.K[jrow]) * gM[col] + S(cam.K[3 + jrow]) * gM[3 + col] + S(cam.K[6 + jrow]) * gM[6 + col];
+      for (int k = 0; k < 3; ++k) {
+        // world = R^T camera
+        S su = 0, sv = 0, sp = 0, sn = 0;
+        for (int jrow = 0; jrow < 3; ++jrow) {
+          const S Rjk = S(cam.R[3 * jrow + k]);
+          su += Rjk * gcol[jrow][0];
+          sv += Rjk * gcol[jrow][1];
+          sp += Rjk * gcol[jrow][2];
+          if (fl.normal) sn += Rjk * row[NG + 1 + jrow];
+        }
+        gu[3 * i + k] += su;
+        gv[3 * i + k] += sv;
+        gm[3 * i + k] += sp;
+        gn[3 * i + k] += P.sign[i] * sn;
+      }
+      go[i] += row[NG];
+      for (int d = 0; d < D; ++d) gf[i * D + d] += row[NG + 4 + d];
+    }
+  }
+  if (fisher) return {fis_geo, fis_o, fis_w};
+  return {g_means, g_U, g_V, g_n, g_op, g_feat};
+}
+
+
+std::vector<torch::Tensor> forward(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,
+                                   torch::Tensor opac, torch::Tensor feats, torch::Tensor viewmats,
+                                   torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
+                                   bool normal, bool depth, bool dist) {
+  const Flags fl{normal, depth, dist};
+  if (means.scalar_type() == torch::kFloat64)
+    return forward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl);
+  return forward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl);
+}
+
+std::vector<torch::Tensor> backward(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,
+                                    torch::Tensor opac, torch::Tensor feats, torch::Tensor viewmats,
+                                    torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
+                                    bool normal, bool depth, bool dist,
+                                    std::vector<torch::Tensor> fwd, std::vector<torch::Tensor> grads,
+                                    bool fisher) {
+  const Flags fl{normal, depth, dist};
+  if (means.scalar_type() == torch::kFloat64)
+    return backward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher);
+  return backward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher);
+}
+
+}  // namespace
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  m.def("forward", &forward, "2DGS forward for C cameras");
+  m.def("backward", &backward, "2DGS backward (or FisherRF squared contributions) for C cameras");
+  m.def("num_threads", []() { return omp_get_max_threads(); });
+}

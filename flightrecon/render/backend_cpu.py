@@ -1,0 +1,69 @@
+"""The `cpu` backend: the C++ kernel (csrc/rasterize.cpp) as a torch autograd function.
+
+The kernel consumes world-frame splat axes (mean, U = s_u t_u, V = s_v t_v, unit normal n): the
+camera projection is linear in them, so the kernel's backward returns their gradients directly and
+torch's autograd carries them on to quats and log_scales. The kernel blends raw sums (alpha,
+sum w z, sum w m, sum w m^2); expected depth and distortion (alpha * M2 - M1^2, which equals
+sum_{i>j} w_i w_j (m_i - m_j)^2) are formed here, so their gradients come from autograd too.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from flightrecon.render.extension import load
+from flightrecon.render.projection import splat_axes
+
+
+def _prep(t: Tensor, dtype: torch.dtype) -> Tensor:
+    return t.to(dtype).contiguous()
+
+
+class RasterizeCPU(torch.autograd.Function):
+    """(means, U, V, n, opacity, features[Cf,N,D]) -> raw per-pixel sums for C cameras."""
+
+    @staticmethod
+    def forward(ctx, means, U, V, n, opac, feats, viewmats, Ks, width, height, near, far,
+                normal, depth, dist):
+        dt = means.dtype
+        args = [_prep(t, dt) for t in (means, U, V, n, opac, feats)]
+        cams = (viewmats.detach().double().contiguous(), Ks.detach().double().contiguous())
+        outs = load().forward(*args, *cams, width, height, near, far, normal, depth, dist)
+        ctx.save_for_backward(*args, *cams, *outs[:9])
+        ctx.meta = (width, height, near, far, normal, depth, dist)
+        ctx.mark_non_differentiable(*outs[7:])
+        return tuple(outs)
+
+    @staticmethod
+    def backward(ctx, gF, gA, gN, gZ, gM, gM2, gMed, *_):
+        saved = ctx.saved_tensors
+        args, cams, fwd = saved[:6], saved[6:8], list(saved[8:])
+        grads = [g.contiguous() if g is not None else torch.zeros_like(o)
+                 for g, o in zip((gF, gA, gN, gZ, gM, gM2, gMed), fwd[:7])]
+        g = load().backward(*args, *cams, *ctx.meta, fwd, grads, False)
+        return (*g, None, None, None, None, None, None, None, None, None)
+
+
+def render_cpu(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Tensor,
+               features: Tensor, viewmats: Tensor, Ks: Tensor, width: int, height: int,
+               near: float, far: float, outputs: tuple[str, ...]) -> dict[str, Tensor]:
+    U, V, n = splat_axes(quats, log_scales)
+    feats = features if features.dim() == 3 else features[None]
+    want_normal = "normal" in outputs or "normal_world" in outputs
+    want_depth = "depth" in outputs
+    want_dist = "distortion" in outputs
+    feat, alpha, normal, zsum, msum, m2sum, median, _, _, radii = RasterizeCPU.apply(
+        means, U, V, n, torch.sigmoid(opacity_logits), feats, viewmats, Ks, width, height,
+        float(near), float(far), want_normal, want_depth, want_dist)
+    alpha = alpha[..., None]
+    out = {"features": feat, "alpha": alpha, "median_depth": median[..., None], "radii": radii}
+    if want_normal:
+        out["normal"] = normal
+    if want_depth:
+        seen = alpha > 0
+        out["depth"] = torch.where(seen, zsum[..., None] / torch.where(seen, alpha, torch.ones_like(alpha)),
+                                   torch.zeros_like(alpha))
+    if want_dist:
+        out["distortion"] = alpha * m2sum[..., None] - msum[..., None] ** 2
+    return out

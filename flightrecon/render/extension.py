@@ -1,0 +1,65 @@
+"""JIT build and load of the C++ rasterizer (csrc/), cached by source hash.
+
+The build directory is $FLIGHTRECON_CACHE/ext/<hash> (default ~/.cache/flightrecon/ext/<hash>), so
+an edited source rebuilds and an unchanged one loads in milliseconds. torch's cpp_extension needs a
+C++ compiler and ninja; their absence is reported as one FlightReconError naming what is missing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+from functools import lru_cache
+from pathlib import Path
+
+from flightrecon.errors import FlightReconError
+
+SOURCES = [Path(__file__).resolve().parents[2] / "csrc" / "rasterize.cpp"]
+CFLAGS = ["-O3", "-march=native", "-ffast-math", "-fopenmp", "-std=c++17"]
+
+
+def cache_dir() -> Path:
+    root = os.environ.get("FLIGHTRECON_CACHE") or os.path.join(os.path.expanduser("~"), ".cache", "flightrecon")
+    return Path(root) / "ext"
+
+
+def source_hash() -> str:
+    h = hashlib.sha256()
+    for src in SOURCES:
+        h.update(src.read_bytes())
+    h.update(" ".join(CFLAGS).encode())
+    import torch
+    h.update(torch.__version__.encode())
+    return h.hexdigest()[:16]
+
+
+def _check_toolchain() -> None:
+    missing = [s for s in SOURCES if not s.is_file()]
+    if missing:
+        raise FlightReconError(f"C++ rasterizer source missing: {missing[0]}")
+    cxx = os.environ.get("CXX", "c++")
+    if shutil.which(cxx) is None:
+        raise FlightReconError(f"cannot build the C++ rasterizer: no C++ compiler ({cxx!r}) on PATH; "
+                               "install g++ (e.g. apt-get install g++) or set CXX")
+    from torch.utils.cpp_extension import is_ninja_available
+    if not is_ninja_available():
+        raise FlightReconError("cannot build the C++ rasterizer: ninja not found; pip install ninja")
+
+
+@lru_cache(maxsize=1)
+def load(verbose: bool = False):
+    """The compiled module (forward, backward, num_threads); builds it on first use."""
+    try:
+        from torch.utils import cpp_extension
+    except ImportError as exc:  # pragma: no cover - torch is a hard dependency
+        raise FlightReconError(f"cannot build the C++ rasterizer: torch is not importable ({exc})")
+    _check_toolchain()
+    build = cache_dir() / source_hash()
+    build.mkdir(parents=True, exist_ok=True)
+    try:
+        return cpp_extension.load(name="flightrecon_raster", sources=[str(s) for s in SOURCES],
+                                  extra_cflags=CFLAGS, extra_ldflags=["-fopenmp"],
+                                  build_directory=str(build), verbose=verbose)
+    except (RuntimeError, OSError) as exc:
+        raise FlightReconError(f"building the C++ rasterizer in {build} failed: {exc}") from exc
