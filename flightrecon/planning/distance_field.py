@@ -29,6 +29,13 @@ class DistanceField:
         self.origin = np.asarray(origin, float).reshape(3)
         self.voxel_size = float(voxel_size)
         self.shape = np.array(self.values.shape)
+        self._flat = self.values.reshape(-1)
+        self._box = self.bounds
+        self._hi_center = (self.shape - 1).astype(float)
+        self._i0_max = np.maximum(self.shape - 2, 0)
+        nx, ny, nz = self.shape
+        self._strides = (ny * nz if nx > 1 else 0, nz if ny > 1 else 0, 1 if nz > 1 else 0)
+        self._row = np.array([ny * nz, nz, 1])
 
     @property
     def accuracy(self) -> float:
@@ -78,34 +85,29 @@ class DistanceField:
         return cls.from_blocked(blocked, origin, voxel_size, signed=signed)
 
     # ------------------------------------------------------------------ queries
-    def _cell(self, points: np.ndarray):
-        """Lower-corner center index, trilinear weights and outside-box distance of each point."""
-        p = np.asarray(points, float).reshape(-1, 3)
-        g = (p - self.origin) / self.voxel_size - 0.5
-        hi = self.shape - 1
-        gc = np.clip(g, 0.0, hi)
-        i0 = np.minimum(np.floor(gc).astype(np.int64), np.maximum(hi - 1, 0))
-        f = gc - i0
-        lo_box, hi_box = self.bounds
-        out = np.linalg.norm(np.maximum(lo_box - p, 0) + np.maximum(p - hi_box, 0), axis=1)
-        return i0, f, out
+    def _outside(self, p: np.ndarray) -> np.ndarray:
+        """Distance of each point to the grid box (0 inside)."""
+        lo, hi = self._box
+        e = np.maximum(lo - p, 0) + np.maximum(p - hi, 0)
+        return np.sqrt(np.einsum("ij,ij->i", e, e))
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Signed clearance (m) of points (N, 3), trilinear between voxel centers -> (N,)."""
-        i0, f, out = self._cell(points)
-        v = self.values
-        nx, ny, nz = v.shape
-        flat = v.reshape(-1)
-        base = (i0[:, 0] * ny + i0[:, 1]) * nz + i0[:, 2]
-        sx = ny * nz if nx > 1 else 0
-        sy = nz if ny > 1 else 0
-        sz = 1 if nz > 1 else 0
+        p = np.asarray(points, float).reshape(-1, 3)
+        g = np.clip((p - self.origin) / self.voxel_size - 0.5, 0.0, self._hi_center)
+        i0 = np.minimum(g.astype(np.int64), self._i0_max)
+        f = g - i0
+        flat = self._flat
+        sx, sy, sz = self._strides
+        base = i0 @ self._row
         fx, fy, fz = f[:, 0], f[:, 1], f[:, 2]
-        c00 = flat[base] * (1 - fz) + flat[base + sz] * fz
-        c01 = flat[base + sy] * (1 - fz) + flat[base + sy + sz] * fz
-        c10 = flat[base + sx] * (1 - fz) + flat[base + sx + sz] * fz
-        c11 = flat[base + sx + sy] * (1 - fz) + flat[base + sx + sy + sz] * fz
+        gz = 1 - fz
+        c00 = flat[base] * gz + flat[base + sz] * fz
+        c01 = flat[base + sy] * gz + flat[base + sy + sz] * fz
+        c10 = flat[base + sx] * gz + flat[base + sx + sz] * fz
+        c11 = flat[base + sx + sy] * gz + flat[base + sx + sy + sz] * fz
         d = (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
+        out = self._outside(p)
         return np.where(out > 0, np.minimum(d, -out), d)
 
     def distance_nearest(self, points: np.ndarray) -> np.ndarray:
@@ -115,8 +117,7 @@ class DistanceField:
         inside = np.all((idx >= 0) & (idx < self.shape), axis=1)
         idx = np.clip(idx, 0, self.shape - 1)
         d = self.values[idx[:, 0], idx[:, 1], idx[:, 2]].astype(float)
-        _, _, out = self._cell(p)
-        return np.where(inside, d, np.minimum(d, -out))
+        return np.where(inside, d, np.minimum(d, -self._outside(p)))
 
     def gradient(self, points: np.ndarray) -> np.ndarray:
         """Spatial gradient (N, 3) of the field (unit length away from the medial axis): points away

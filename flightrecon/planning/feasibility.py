@@ -1,0 +1,292 @@
+"""Feasibility of a whole candidate library: the set the view selector scores.
+
+For every candidate the check returns feasible or the first reason it is not:
+out_of_bounds (outside the workspace box), in_obstacle / unknown_space (the target voxel), clearance
+(the target, or every trajectory found, comes closer than body radius + safety margin),
+no_path (OMPL found none in its time limit), limits (velocity, acceleration, jerk, yaw rate or
+tilt exceeded), too_long (duration over the maximum).
+
+Straight legs are tried first for all candidates at once; only the ones whose straight trajectory
+loses clearance go to OMPL. Every trajectory is sampled densely (a quarter voxel of travel between
+samples) and its clearance required with a Lipschitz margin, so it holds between samples too.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field as dc_field
+
+import numpy as np
+
+from flightrecon.config import ScenarioConfig
+from flightrecon.control.trajectory import FlatState
+from flightrecon.planning.distance_field import DistanceField
+from flightrecon.planning.library import ViewpointLibrary, in_bounds, load_library
+from flightrecon.planning.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
+from flightrecon.planning.paths import plan_path, seed_ompl
+from flightrecon.planning.timing import JerkTrajectory, Limits, time_path, unwrap_yaws
+
+REASONS = ("feasible", "out_of_bounds", "in_obstacle", "unknown_space", "clearance", "no_path",
+           "limits", "too_long")
+GRAVITY = 9.81
+
+
+@dataclass
+class CandidateResult:
+    """Outcome for one candidate view; `trajectory` is set only when feasible."""
+
+    position: np.ndarray
+    yaw: float
+    reason: str
+    trajectory: JerkTrajectory | None = None
+    duration: float = math.nan
+    length: float = math.nan
+    used_ompl: bool = False
+    min_clearance: float = math.nan
+
+    @property
+    def feasible(self) -> bool:
+        return self.reason == "feasible"
+
+
+@dataclass(frozen=True)
+class PlanningSettings:
+    """What the checks need from the scenario config, resolved to SI units."""
+
+    limits: Limits
+    required_clearance: float
+    max_tilt: float
+    max_duration: float
+    ompl_time_limit: float
+
+    @classmethod
+    def from_config(cls, cfg: ScenarioConfig) -> "PlanningSettings":
+        p, d = cfg.planner, cfg.drone
+        limits = Limits(p.max_vel, p.max_acc, p.max_jerk, math.radians(p.max_yaw_rate_deg),
+                        math.radians(p.max_yaw_acc_deg), math.radians(p.max_yaw_jerk_deg))
+        return cls(limits, d.body_radius + p.safety_margin, math.radians(d.max_tilt_deg),
+                   p.max_duration, p.ompl_time_limit)
+
+
+@dataclass
+class PlanningTimes:
+    """Seconds spent per stage in the last library check (for the benchmark and study)."""
+
+    total: float = 0.0
+    straight: float = 0.0
+    ompl: float = 0.0
+    n_ompl: int = 0
+    extra: dict = dc_field(default_factory=dict)
+
+
+def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settings: PlanningSettings,
+                       ) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Dense check of many trajectories at once -> (reason per trajectory, min clearance, length).
+
+    Samples are spaced so no axis moves more than a quarter voxel between them; the clearance
+    required at samples adds sqrt(3)/2 of the largest sample spacing (the field's Lipschitz bound)."""
+    lim = settings.limits
+    if not trajs:
+        return [], np.zeros(0), np.zeros(0)
+    dt = (field.voxel_size / 4) / max(lim.vel, 1e-9)
+    pos_l, vel_l, acc_l, jerk_l, owner = [], [], [], [], []
+    for i, tr in enumerate(trajs):
+        n = max(int(math.ceil(tr.duration / dt)), 1)
+        t = np.linspace(0.0, tr.duration, n + 1)
+        p, v, a, j = tr.evaluate(t)
+        pos_l.append(p)
+        vel_l.append(v)
+        acc_l.append(a)
+        jerk_l.append(j)
+        owner.append(np.full(len(t), i))
+    pos, vel, acc, jerk = (np.concatenate(x) for x in (pos_l, vel_l, acc_l, jerk_l))
+    who = np.concatenate(owner)
+    clear = field.distance(pos[:, :3])
+    step = np.zeros(len(pos))
+    same = who[1:] == who[:-1]
+    step[1:][same] = np.linalg.norm(np.diff(pos[:, :3], axis=0), axis=1)[same]
+    n = len(trajs)
+    min_clear = np.full(n, np.inf)
+    np.minimum.at(min_clear, who, clear)
+    max_step = np.zeros(n)
+    np.maximum.at(max_step, who, step)
+    length = np.bincount(who, weights=step, minlength=n)
+    tol = 1e-6
+    over = ((np.abs(vel[:, :3]) > lim.vel + tol).any(1) | (np.abs(acc[:, :3]) > lim.acc + tol).any(1)
+            | (np.abs(jerk[:, :3]) > lim.jerk + tol).any(1) | (np.abs(vel[:, 3]) > lim.yaw_rate + tol)
+            | (np.abs(acc[:, 3]) > lim.yaw_acc + tol) | (np.abs(jerk[:, 3]) > lim.yaw_jerk + tol))
+    thrust_z = acc[:, 2] + GRAVITY
+    tilt = np.arctan2(np.linalg.norm(acc[:, :2], axis=1), thrust_z)
+    over |= (thrust_z <= 0) | (tilt > settings.max_tilt)
+    bad_limits = np.bincount(who, weights=over.astype(float), minlength=n) > 0
+    need = settings.required_clearance + math.sqrt(3) * max_step / 2
+    reasons = []
+    for i, tr in enumerate(trajs):
+        if min_clear[i] < need[i]:
+            reasons.append("clearance")
+        elif bad_limits[i]:
+            reasons.append("limits")
+        elif tr.duration > settings.max_duration:
+            reasons.append("too_long")
+        else:
+            reasons.append("feasible")
+    return reasons, min_clear, length
+
+
+def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, field: DistanceField,
+                     target_state: np.ndarray, workspace: np.ndarray, settings: PlanningSettings,
+                     times: PlanningTimes | None = None) -> list[CandidateResult]:
+    """Feasibility of every candidate (positions (N, 3), yaws (N,)) from the current flat state.
+
+    `target_state` (N,) holds each target's map state (FREE, OCCUPIED, UNKNOWN)."""
+    t_all = time.perf_counter()
+    times = times if times is not None else PlanningTimes()
+    p0 = np.asarray(start.position, float)
+    v0 = np.array([*start.velocity, start.yaw_rate], float)
+    a0 = np.array([*start.acceleration, 0.0], float)
+    n = len(positions)
+    results = [CandidateResult(np.asarray(positions[i], float), float(yaws[i]), "") for i in range(n)]
+    inside = in_bounds(positions, workspace)
+    d_target = field.distance(positions)
+    todo = []
+    for i, r in enumerate(results):
+        if not inside[i]:
+            r.reason = "out_of_bounds"
+        elif target_state[i] == OCCUPIED:
+            r.reason = "in_obstacle"
+        elif target_state[i] == UNKNOWN:
+            r.reason = "unknown_space"
+        elif d_target[i] < settings.required_clearance:
+            r.reason = "clearance"
+        else:
+            todo.append(i)
+    # 1. Straight legs for all remaining candidates, checked together.
+    t0 = time.perf_counter()
+    trajs, ok_idx, retry = [], [], []
+    for i in todo:
+        yaw_path = unwrap_yaws(start.yaw, results[i].yaw, np.array([0.0, 1.0]))
+        tr = time_path(np.stack([p0, results[i].position]), yaw_path, settings.limits, v0, a0)
+        if tr is None:
+            results[i].reason = "limits"
+            continue
+        trajs.append(tr)
+        ok_idx.append(i)
+    reasons, min_clear, length = check_trajectories(trajs, field, settings)
+    for i, tr, why, mc, ln in zip(ok_idx, trajs, reasons, min_clear, length):
+        if why == "clearance":
+            retry.append(i)
+        else:
+            _finish(results[i], tr, why, mc, ln, used_ompl=False)
+    times.straight = time.perf_counter() - t0
+    # 2. OMPL around obstacles for the rest.
+    t0 = time.perf_counter()
+    for i in retry:
+        r = results[i]
+        times.n_ompl += 1
+        path = plan_path(field, p0, r.position, settings.required_clearance, workspace,
+                         settings.ompl_time_limit)
+        if path is None:
+            r.reason = "no_path"
+            continue
+        seg_len = np.linalg.norm(np.diff(path, axis=0), axis=1)
+        frac = np.concatenate([[0.0], np.cumsum(seg_len)]) / max(seg_len.sum(), 1e-9)
+        yaw_path = unwrap_yaws(start.yaw, r.yaw, frac)
+        why, tr, mc, ln = "clearance", None, math.nan, math.nan
+        # Flowing through the waypoints first; stopping at each (straight legs) if that cuts a corner.
+        for stop in (False, True):
+            cand = time_path(path, yaw_path, settings.limits, v0, a0, stop_at_waypoints=stop)
+            if cand is None:
+                why = "limits"
+                continue
+            (why,), (mc,), (ln,) = check_trajectories([cand], field, settings)
+            tr = cand
+            if why == "feasible":
+                break
+        _finish(r, tr, why, mc, ln, used_ompl=True)
+    times.ompl = time.perf_counter() - t0
+    times.total = time.perf_counter() - t_all
+    return results
+
+
+def _finish(r: CandidateResult, tr: JerkTrajectory | None, why: str, min_clear: float, length: float,
+            used_ompl: bool) -> None:
+    r.reason = why
+    r.used_ompl = used_ompl
+    r.min_clearance = float(min_clear)
+    if tr is not None:
+        r.duration = tr.duration
+        r.length = float(length)
+    if why == "feasible":
+        r.trajectory = tr
+
+
+class Planner:
+    """Keeps the planning world (online occupancy map, or the ground-truth scene) and checks libraries.
+
+    `workspace` (2, 3) is the box candidates must lie in; the map covers it plus a margin."""
+
+    def __init__(self, cfg: ScenarioConfig, workspace: np.ndarray, scene_mesh=None,
+                 start_position: np.ndarray | None = None):
+        self.cfg = cfg
+        self.settings = PlanningSettings.from_config(cfg)
+        self.library: ViewpointLibrary = load_library(cfg.planner.library)
+        self.workspace = np.asarray(workspace, float)
+        pad = cfg.drone.body_radius + cfg.planner.safety_margin + 2 * cfg.planner.voxel_size
+        self.map_bounds = self.workspace + np.array([[-pad], [pad]])
+        self.times = PlanningTimes()
+        seed_ompl(cfg.seed)
+        self.occupancy: OccupancyMap | None = None
+        self._field: DistanceField | None = None
+        if cfg.planner.use_ground_truth:
+            if scene_mesh is None:
+                raise ValueError("planner.use_ground_truth needs the scene mesh")
+            seeds = None if start_position is None else np.asarray(start_position, float)[None]
+            self._field = DistanceField.from_mesh(scene_mesh, cfg.planner.voxel_size, self.map_bounds,
+                                                  free_seeds=seeds, signed=False)
+        else:
+            self.occupancy = OccupancyMap(self.map_bounds, cfg.planner.voxel_size)
+            if start_position is not None:
+                self.mark_body_free(start_position)
+
+    def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
+                  body_position: np.ndarray | None = None) -> None:
+        """Add a depth frame to the online map (ignored when planning on the ground truth)."""
+        if self.occupancy is None:
+            return
+        self.occupancy.integrate(depth, K, T_wc)
+        if body_position is not None:
+            self.mark_body_free(body_position)
+        self._field = None
+
+    def mark_body_free(self, position: np.ndarray) -> None:
+        """Where the drone hovers is free (its body proves it) out to its required clearance, so the
+        unseen blind cones above and below the camera do not pin it in place."""
+        if self.occupancy is None:
+            return
+        self.occupancy.mark_free_sphere(position, self.settings.required_clearance + self.cfg.planner.voxel_size)
+        self._field = None
+
+    @property
+    def field(self) -> DistanceField:
+        if self._field is None:
+            self._field = self.occupancy.distance_field()
+        return self._field
+
+    def target_states(self, positions: np.ndarray) -> np.ndarray:
+        if self.occupancy is not None:
+            return self.occupancy.state(positions)
+        return np.where(self.field.distance(positions) > 0, FREE, OCCUPIED).astype(np.int8)
+
+    def check(self, start: FlatState, positions: np.ndarray, yaws: np.ndarray) -> list[CandidateResult]:
+        """Feasibility of explicit candidate poses from the current flat state."""
+        self.times = PlanningTimes()
+        field = self.field
+        return check_candidates(start, np.asarray(positions, float).reshape(-1, 3), np.asarray(yaws, float),
+                                field, self.target_states(positions), self.workspace, self.settings,
+                                self.times)
+
+    def check_library(self, start: FlatState) -> list[CandidateResult]:
+        """Feasibility of the whole library around the current position and heading."""
+        positions, yaws = self.library.poses(start.position, start.yaw)
+        return self.check(start, positions, yaws)

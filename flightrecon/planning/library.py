@@ -1,0 +1,118 @@
+"""Viewpoint primitive library: the candidate views generated around the current viewpoint.
+
+A candidate is an offset (forward, left, up, dyaw) applied GauSS-MI style: the heading turns first,
+yaw' = yaw + dyaw, then the position moves by (forward, left) in the frame of the NEW heading and by
+`up` vertically. The camera is fixed to the body, so a candidate has no pitch.
+
+The default library is the paper's 198 candidates: 11 position offsets (stay; 0.3 and 0.6 m forward,
+backward, left and right; 0.4 m up and down; GauSS-MI's step units) times 18 headings (every 20 deg
+over the full turn). Because offsets are taken in the turned frame, the candidates spread over rings
+of radius 0.3 m and 0.6 m around the drone at 36 bearings. A user library is a TOML file:
+
+    [[candidate]]
+    forward = 0.3   # m, all keys optional (default 0)
+    left = 0.0
+    up = 0.4
+    yaw_deg = 40.0
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from flightrecon.errors import ConfigError
+
+STEP_XY = 0.3  # m (GauSS-MI's lateral unit)
+STEP_Z = 0.4  # m (GauSS-MI's vertical unit)
+N_HEADINGS = 18
+_KEYS = ("forward", "left", "up", "yaw_deg")
+
+
+@dataclass(frozen=True)
+class ViewpointLibrary:
+    """Candidate offsets (M, 4): forward, left, up (m) and dyaw (rad)."""
+
+    offsets: np.ndarray
+    name: str = "default"
+
+    def __len__(self) -> int:
+        return len(self.offsets)
+
+    def poses(self, position: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+        """World positions (M, 3) and yaws (M,) of the candidates around a viewpoint.
+
+        Yaws are wrapped to (-pi, pi]."""
+        p = np.asarray(position, float).reshape(3)
+        new_yaw = yaw + self.offsets[:, 3]
+        c, s = np.cos(new_yaw), np.sin(new_yaw)
+        fwd, left, up = self.offsets[:, 0], self.offsets[:, 1], self.offsets[:, 2]
+        pos = p + np.stack([fwd * c - left * s, fwd * s + left * c, up], axis=1)
+        return pos, wrap_angle(new_yaw)
+
+
+def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
+    """Angle(s) wrapped to (-pi, pi]."""
+    return -((-np.asarray(a, float) + math.pi) % (2 * math.pi) - math.pi)
+
+
+def default_library() -> ViewpointLibrary:
+    """The paper's 198 candidates (11 position offsets x 18 headings)."""
+    moves = [(0.0, 0.0, 0.0)]
+    for k in (1, 2):
+        moves += [(k * STEP_XY, 0.0, 0.0), (-k * STEP_XY, 0.0, 0.0),
+                  (0.0, k * STEP_XY, 0.0), (0.0, -k * STEP_XY, 0.0)]
+    moves += [(0.0, 0.0, STEP_Z), (0.0, 0.0, -STEP_Z)]
+    yaws = np.radians(np.arange(N_HEADINGS) * 360.0 / N_HEADINGS)
+    yaws = wrap_angle(yaws)
+    offsets = np.array([(f, l, u, y) for (f, l, u) in moves for y in yaws], float)
+    return ViewpointLibrary(offsets, "default")
+
+
+def load_library(spec: str) -> ViewpointLibrary:
+    """'default' or the path of a TOML file of [[candidate]] tables (see the module docstring)."""
+    if spec == "default":
+        return default_library()
+    path = Path(spec)
+    if not path.is_file():
+        raise ConfigError(f"planner.library: candidate file not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"planner.library: {path} is not valid TOML: {exc}") from None
+    extra = sorted(set(data) - {"candidate"})
+    if extra:
+        raise ConfigError(f"planner.library: {path}: unknown key '{extra[0]}' (expected [[candidate]] tables)")
+    entries = data.get("candidate")
+    if not isinstance(entries, list) or not entries:
+        raise ConfigError(f"planner.library: {path} holds no [[candidate]] tables")
+    rows = []
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, dict):
+            raise ConfigError(f"planner.library: {path}: candidate {i} is not a table")
+        unknown = sorted(set(entry) - set(_KEYS))
+        if unknown:
+            raise ConfigError(f"planner.library: {path}: candidate {i}: unknown key '{unknown[0]}' "
+                              f"(valid: {', '.join(_KEYS)})")
+        row = []
+        for key in _KEYS:
+            v = entry.get(key, 0.0)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"planner.library: {path}: candidate {i}: '{key}' must be a finite number, got {v!r}")
+            row.append(float(v))
+        if abs(row[0]) > 20 or abs(row[1]) > 20 or abs(row[2]) > 20:
+            raise ConfigError(f"planner.library: {path}: candidate {i}: offsets beyond 20 m are not local views")
+        row[3] = math.radians(row[3])
+        rows.append(row)
+    return ViewpointLibrary(np.array(rows, float), path.stem)
+
+
+def in_bounds(positions: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Mask of positions (N, 3) inside the workspace box `bounds` (2, 3)."""
+    b = np.asarray(bounds, float)
+    p = np.asarray(positions, float).reshape(-1, 3)
+    return np.all((p >= b[0]) & (p <= b[1]), axis=1)

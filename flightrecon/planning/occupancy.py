@@ -1,0 +1,136 @@
+"""Online occupancy voxel map built from depth frames: free along rays, occupied at hits, unknown elsewhere.
+
+Each frame is integrated in projective form, the vectorized equivalent of casting every pixel's ray:
+every voxel in the camera's view asks its own pixel whether the measured surface lies behind it
+(then the ray passed through it: free) and every valid depth point marks its voxel as hit. A voxel
+hit in a frame counts as occupied for that frame even if another ray passed through it. Evidence is
+accumulated as clamped log-odds (hit +0.85, pass -0.4, OctoMap's usual values), so a wall seen once
+survives a few grazing rays. Invalid depth (0: nothing within range) carves nothing. Voxels never
+touched stay unknown; planning treats unknown like occupied (it never flies through the unseen).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from flightrecon.geometry import backproject_depth, invert_pose
+from flightrecon.planning.distance_field import DistanceField, grid_for_bounds
+
+UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+
+
+class OccupancyMap:
+    """Log-odds voxel grid over a workspace box; `blocked()` is everything not known to be free."""
+
+    def __init__(self, bounds: np.ndarray, voxel_size: float = 0.05, hit: float = 0.85,
+                 miss: float = -0.4, clamp: tuple[float, float] = (-2.0, 3.5)):
+        self.voxel_size = float(voxel_size)
+        self.origin, self.shape = grid_for_bounds(bounds, voxel_size)
+        self.logodds = np.zeros(self.shape, np.float32)
+        self.observed = np.zeros(self.shape, bool)
+        self.hit, self.miss, self.clamp = float(hit), float(miss), clamp
+
+    @property
+    def bounds(self) -> np.ndarray:
+        return np.stack([self.origin, self.origin + np.array(self.shape) * self.voxel_size])
+
+    def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> None:
+        """Add one z-depth frame (meters, 0 invalid) seen from camera pose T_wc (OpenCV axes)."""
+        depth = np.asarray(depth, np.float32)
+        h = self.voxel_size
+        pts, valid = backproject_depth(depth, K, T_wc)
+        hit = np.zeros(self.shape, bool)
+        if len(pts):
+            idx = self._index(pts)
+            ok = self._inside(idx)
+            hit[idx[ok, 0], idx[ok, 1], idx[ok, 2]] = True
+        max_d = float(depth[valid].max()) if valid.any() else 0.0
+        if max_d <= 0:
+            self._apply(hit, np.zeros_like(hit))
+            return
+        # Voxels in the view frustum up to the farthest measurement.
+        H, W = depth.shape
+        corners = np.array([[0, 0], [W, 0], [0, H], [W, H]], float)
+        rays = np.concatenate([(corners - K[:2, 2]) / np.diag(K)[:2], np.ones((4, 1))], axis=1)
+        frustum_c = np.concatenate([np.zeros((1, 3)), rays * max_d], axis=0)
+        frustum_w = frustum_c @ T_wc[:3, :3].T + T_wc[:3, 3]
+        lo = np.maximum(np.floor((frustum_w.min(0) - self.origin) / h).astype(int), 0)
+        hi = np.minimum(np.ceil((frustum_w.max(0) - self.origin) / h).astype(int) + 1, self.shape)
+        if np.any(hi <= lo):
+            self._apply(hit, np.zeros_like(hit))
+            return
+        ii, jj, kk = [np.arange(a, b) for a, b in zip(lo, hi)]
+        T_cw = invert_pose(T_wc)
+        R, t = T_cw[:3, :3], T_cw[:3, 3]
+        # Camera coordinates of all voxel centers of the box, built separably (no (N, 3) world array).
+        cx = self.origin[0] + (ii + 0.5) * h
+        cy = self.origin[1] + (jj + 0.5) * h
+        cz = self.origin[2] + (kk + 0.5) * h
+        pc = (R[:, 0, None, None, None] * cx[None, :, None, None] + R[:, 1, None, None, None] * cy[None, None, :, None]
+              + R[:, 2, None, None, None] * cz[None, None, None, :] + t[:, None, None, None]).astype(np.float32)
+        z = pc[2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.floor(K[0, 0] * pc[0] / z + K[0, 2])
+            v = np.floor(K[1, 1] * pc[1] / z + K[1, 2])
+        in_view = (z > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        sel = np.nonzero(in_view)
+        d = depth[v[sel].astype(np.int64), u[sel].astype(np.int64)]
+        # The ray passed this voxel if the surface is more than a voxel behind its center.
+        passed = (d > 0) & (z[sel] < d - h)
+        free = np.zeros(self.shape, bool)
+        free[sel[0][passed] + lo[0], sel[1][passed] + lo[1], sel[2][passed] + lo[2]] = True
+        self._apply(hit, free & ~hit)
+
+    def mark_free_sphere(self, center: np.ndarray, radius: float) -> None:
+        """Declare the unknown voxels within `radius` of `center` free (the volume the drone occupies:
+        its own body proves it empty). Voxels with evidence keep it."""
+        h = self.voxel_size
+        c = np.asarray(center, float)
+        lo = np.maximum(np.floor((c - radius - self.origin) / h).astype(int), 0)
+        hi = np.minimum(np.ceil((c + radius - self.origin) / h).astype(int) + 1, self.shape)
+        if np.any(hi <= lo):
+            return
+        axes = [self.origin[a] + (np.arange(lo[a], hi[a]) + 0.5) * h - c[a] for a in range(3)]
+        gx, gy, gz = np.meshgrid(*axes, indexing="ij")
+        inside = gx**2 + gy**2 + gz**2 <= radius**2
+        box = tuple(slice(a, b) for a, b in zip(lo, hi))
+        sub_obs = self.observed[box]
+        self.logodds[box][inside & ~sub_obs] = self.miss
+        sub_obs |= inside
+
+    def state(self, points: np.ndarray) -> np.ndarray:
+        """UNKNOWN / FREE / OCCUPIED of the voxel holding each point (N, 3); outside the grid: UNKNOWN."""
+        idx = self._index(np.asarray(points, float).reshape(-1, 3))
+        ok = self._inside(idx)
+        out = np.full(len(idx), UNKNOWN, np.int8)
+        i, j, k = idx[ok].T
+        obs = self.observed[i, j, k]
+        occ = self.logodds[i, j, k] > 0
+        out[ok] = np.where(obs, np.where(occ, OCCUPIED, FREE), UNKNOWN)
+        return out
+
+    def occupied(self) -> np.ndarray:
+        return self.observed & (self.logodds > 0)
+
+    def free(self) -> np.ndarray:
+        return self.observed & (self.logodds <= 0)
+
+    def blocked(self) -> np.ndarray:
+        """Not flyable: occupied or unknown."""
+        return ~self.free()
+
+    def distance_field(self, signed: bool = False) -> DistanceField:
+        """Clearance to everything not known free (unknown counts as an obstacle)."""
+        return DistanceField.from_blocked(self.blocked(), self.origin, self.voxel_size, signed=signed)
+
+    def _index(self, pts: np.ndarray) -> np.ndarray:
+        return np.floor((pts - self.origin) / self.voxel_size).astype(np.int64)
+
+    def _inside(self, idx: np.ndarray) -> np.ndarray:
+        return np.all((idx >= 0) & (idx < np.array(self.shape)), axis=1)
+
+    def _apply(self, hit: np.ndarray, passed: np.ndarray) -> None:
+        lo, hi = self.clamp
+        self.logodds[hit] = np.minimum(self.logodds[hit] + self.hit, hi)
+        self.logodds[passed] = np.maximum(self.logodds[passed] + self.miss, lo)
+        self.observed |= hit | passed

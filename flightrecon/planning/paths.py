@@ -1,0 +1,86 @@
+"""Geometric paths on a distance field: OMPL RRT-Connect with path simplification.
+
+States and straight motions are valid when the distance field keeps the required clearance plus a
+small Lipschitz margin at samples a quarter voxel apart, so the clearance also holds between them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from flightrecon.planning.distance_field import DistanceField
+
+_OMPL_READY = False
+
+
+def _ompl():
+    """Import OMPL once, quiet its Info logging and seed its global RNG for repeatable plans."""
+    global _OMPL_READY
+    from ompl import base as ob, geometric as og, util as ou
+
+    if not _OMPL_READY:
+        ou.setLogLevel(ou.LogLevel.LOG_ERROR)
+        _OMPL_READY = True
+    return ob, og, ou
+
+
+def seed_ompl(seed: int) -> None:
+    """Seed OMPL's global RNG; only effective before its first planner is created."""
+    _, _, ou = _ompl()
+    ou.RNG.setSeed(int(seed) + 1)  # OMPL rejects seed 0
+
+
+def plan_path(field: DistanceField, start: np.ndarray, goal: np.ndarray, required: float,
+              bounds: np.ndarray, time_limit: float) -> np.ndarray | None:
+    """Collision-free, simplified waypoints (W, 3) from start to goal, or None if none was found.
+
+    Every state along the path (checked at a quarter voxel) keeps `required` clearance on `field`."""
+    ob, og, _ = _ompl()
+    b = np.asarray(bounds, float)
+    step = field.voxel_size / 4
+    need = required + math.sqrt(3) * step / 2  # trilinear field is sqrt(3)-Lipschitz at worst
+    # All OMPL objects live in this frame only: nanobind then frees them before exit (no leak noise).
+    space = ob.RealVectorStateSpace(3)
+    rb = ob.RealVectorBounds(3)
+    for k in range(3):
+        rb.setLow(k, float(b[0, k]))
+        rb.setHigh(k, float(b[1, k]))
+    space.setBounds(rb)
+    ss = og.SimpleSetup(space)
+    query = field.distance
+
+    def valid(state) -> bool:
+        return bool(query(np.array([[state[0], state[1], state[2]]]))[0] >= need)
+
+    class SegmentValidator(ob.MotionValidator):
+        """Checks a whole straight motion with one vectorized field query (a Python callback per
+        interpolated state would dominate the planning time)."""
+
+        def checkMotion(self, s1, s2, *_):
+            a = np.array([s1[0], s1[1], s1[2]])
+            c = np.array([s2[0], s2[1], s2[2]])
+            n = max(int(math.ceil(np.linalg.norm(c - a) / step)), 1)
+            pts = a + np.linspace(0.0, 1.0, n + 1)[:, None] * (c - a)
+            return bool(np.all(query(pts) >= need))
+
+    ss.setStateValidityChecker(valid)
+    si = ss.getSpaceInformation()
+    si.setMotionValidator(SegmentValidator(si))
+    s, g = space.allocState(), space.allocState()
+    for k in range(3):
+        s[k] = float(start[k])
+        g[k] = float(goal[k])
+    ss.setStartAndGoalStates(s, g)
+    ss.setPlanner(og.RRTConnect(si))
+    ss.solve(float(time_limit))
+    if not ss.haveExactSolutionPath():
+        ss.clear()
+        return None
+    ss.simplifySolution()
+    path = ss.getSolutionPath()
+    out = np.array([[path.getState(i)[k] for k in range(3)] for i in range(path.getStateCount())])
+    ss.clear()
+    out[0], out[-1] = start, goal
+    return out

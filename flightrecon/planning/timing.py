@@ -1,0 +1,184 @@
+"""Jerk-limited timing of a geometric path with ruckig: x, y, z and yaw, ending at rest.
+
+The community ruckig plans one segment at a time offline (intermediate waypoints need its cloud
+service), so a path is timed as a chain of segments through its waypoints with chosen via-velocities:
+along the bisector of the adjacent legs, slower on sharp turns and short legs. With zero
+via-velocities each leg is planned with phase synchronization, which keeps x, y, z on the straight
+leg exactly: the fallback when a faster chain leaves the checked corridor.
+
+`JerkTrajectory` stores every axis as piecewise-cubic phases (ruckig's own profiles), so sampling
+many times at once is vectorized; it implements the `Trajectory` protocol of flightrecon.control.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from ruckig import InputParameter, Result, Ruckig, Synchronization
+from ruckig import Trajectory as RuckigTrajectory
+
+from flightrecon.control.trajectory import FlatState
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Per-axis kinematic limits (x, y, z share the linear ones; yaw in rad)."""
+
+    vel: float
+    acc: float
+    jerk: float
+    yaw_rate: float
+    yaw_acc: float
+    yaw_jerk: float
+
+    def arrays(self) -> tuple[list[float], list[float], list[float]]:
+        return ([self.vel] * 3 + [self.yaw_rate], [self.acc] * 3 + [self.yaw_acc],
+                [self.jerk] * 3 + [self.yaw_jerk])
+
+
+class JerkTrajectory:
+    """Piecewise-cubic (constant-jerk phases) trajectory in x, y, z, yaw; at rest after the end."""
+
+    def __init__(self, starts: list[np.ndarray], coeffs: list[np.ndarray], duration: float):
+        # Per axis: phase start times (P,), and (P, 4) rows of p0, v0, a0, jerk.
+        self._starts = starts
+        self._coeffs = coeffs
+        self._duration = float(duration)
+
+    @property
+    def duration(self) -> float:
+        return self._duration
+
+    def evaluate(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Position, velocity, acceleration and jerk, each (T, 4) [x, y, z, yaw], at many times."""
+        t = np.clip(np.asarray(times, float).reshape(-1), 0.0, self._duration)
+        out = np.empty((4, len(t), 4))
+        for ax in range(4):
+            k = np.searchsorted(self._starts[ax], t, side="right") - 1
+            k = np.clip(k, 0, len(self._starts[ax]) - 1)
+            dt = t - self._starts[ax][k]
+            p0, v0, a0, j = self._coeffs[ax][k].T
+            out[0, :, ax] = p0 + dt * (v0 + dt * (a0 / 2 + dt * j / 6))
+            out[1, :, ax] = v0 + dt * (a0 + dt * j / 2)
+            out[2, :, ax] = a0 + dt * j
+            out[3, :, ax] = j
+        end = np.asarray(times, float).reshape(-1) >= self._duration
+        out[1:, end, :] = 0.0  # at rest after the end
+        return out[0], out[1], out[2], out[3]
+
+    def sample(self, t: float) -> FlatState:
+        p, v, a, _ = self.evaluate(np.array([t]))
+        return FlatState(p[0, :3].copy(), v[0, :3].copy(), a[0, :3].copy(), float(p[0, 3]), float(v[0, 3]))
+
+    @property
+    def end_position(self) -> np.ndarray:
+        return self.evaluate(np.array([self._duration]))[0][0]
+
+
+def _segment(otg: Ruckig, inp: InputParameter, out: RuckigTrajectory):
+    result = otg.calculate(inp, out)
+    if result not in (Result.Working, Result.Finished):
+        return None
+    return out
+
+
+def time_path(waypoints: np.ndarray, yaws: np.ndarray, limits: Limits,
+              start_vel: np.ndarray | None = None, start_acc: np.ndarray | None = None,
+              stop_at_waypoints: bool = False) -> JerkTrajectory | None:
+    """Chain ruckig segments through `waypoints` (W, 3) with headings `yaws` (W,) (already unwrapped
+    to be continuous). Starts from the given velocity/acceleration (x, y, z, yaw rate), ends at rest.
+    Returns None when ruckig finds no trajectory (e.g. an initial state beyond the limits)."""
+    wp = np.asarray(waypoints, float)
+    yw = np.asarray(yaws, float)
+    n = len(wp)
+    vias = np.zeros((n, 4))
+    if start_vel is not None:
+        vias[0] = start_vel
+    if not stop_at_waypoints:
+        vias[1:-1] = via_velocities(wp, yw, limits)
+    acc0 = np.zeros(4) if start_acc is None else np.asarray(start_acc, float)
+    otg = Ruckig(4)
+    vmax, amax, jmax = limits.arrays()
+    starts: list[list[np.ndarray]] = [[] for _ in range(4)]
+    coeffs: list[list[np.ndarray]] = [[] for _ in range(4)]
+    t0 = 0.0
+    acc = acc0
+    for i in range(n - 1):
+        inp = InputParameter(4)
+        inp.current_position = [*wp[i], yw[i]]
+        inp.current_velocity = list(vias[i])
+        inp.current_acceleration = list(acc)
+        inp.target_position = [*wp[i + 1], yw[i + 1]]
+        inp.target_velocity = list(vias[i + 1])
+        inp.target_acceleration = [0.0] * 4
+        inp.max_velocity, inp.max_acceleration, inp.max_jerk = vmax, amax, jmax
+        if not np.any(vias[i]) and not np.any(vias[i + 1]) and not np.any(acc):
+            # Rest to rest: phase synchronization keeps x, y, z on the straight leg (ruckig only
+            # honours it for all axes together; mixing per-axis modes silently drops it).
+            inp.synchronization = Synchronization.Phase
+        seg = _segment(otg, inp, RuckigTrajectory(4))
+        if seg is None:
+            return None
+        for ax in range(4):
+            s, c = _phases(seg.profiles[0][ax])
+            starts[ax].append(s + t0)
+            coeffs[ax].append(c)
+        t0 += seg.duration
+        acc = np.zeros(4)
+    if n < 2:
+        for ax, val in enumerate([*wp[0], yw[0]]):
+            starts[ax].append(np.zeros(1))
+            coeffs[ax].append(np.array([[val, 0.0, 0.0, 0.0]]))
+    return JerkTrajectory([np.concatenate(s) for s in starts], [np.concatenate(c) for c in coeffs], t0)
+
+
+def _phases(profile) -> tuple[np.ndarray, np.ndarray]:
+    """Start times and (p0, v0, a0, jerk) rows of one axis profile, its brake pre-phases included."""
+    rows, times = [], []
+    t = 0.0
+    brake = profile.brake
+    if brake.duration > 0:
+        for k in range(2):
+            if brake.t[k] > 0:
+                times.append(t)
+                rows.append((brake.p[k], brake.v[k], brake.a[k], brake.j[k]))
+                t += brake.t[k]
+    for k in range(7):
+        times.append(t)
+        rows.append((profile.p[k], profile.v[k], profile.a[k], profile.j[k]))
+        t += profile.t[k]
+    # Final state held after the last phase (exact end values, no cubic drift).
+    times.append(t)
+    rows.append((profile.p[7], profile.v[7], profile.a[7], 0.0))
+    return np.array(times), np.array(rows)
+
+
+def via_velocities(wp: np.ndarray, yaws: np.ndarray, limits: Limits) -> np.ndarray:
+    """Velocities (W-2, 4) at the interior waypoints: along the bisector of the adjacent legs, with a
+    speed that falls to zero for a U-turn and is limited by what the shorter leg can brake from."""
+    d_in = wp[1:-1] - wp[:-2]
+    d_out = wp[2:] - wp[1:-1]
+    l_in = np.linalg.norm(d_in, axis=1)
+    l_out = np.linalg.norm(d_out, axis=1)
+    u_in = d_in / np.maximum(l_in, 1e-9)[:, None]
+    u_out = d_out / np.maximum(l_out, 1e-9)[:, None]
+    bis = u_in + u_out
+    nb = np.linalg.norm(bis, axis=1)
+    direction = bis / np.maximum(nb, 1e-9)[:, None]
+    cos_turn = np.sum(u_in * u_out, axis=1)
+    brake_speed = np.sqrt(limits.acc * np.minimum(l_in, l_out))  # half the stopping-distance speed
+    speed = np.minimum(limits.vel, brake_speed) * np.clip(cos_turn, 0.0, 1.0)
+    v = direction * speed[:, None]
+    v = np.clip(v, -limits.vel, limits.vel)
+    # Yaw rate at a via point: the mean rate over the two legs' straight-line travel times.
+    legs_t = np.maximum((l_in + l_out) / max(limits.vel, 1e-9), 1e-3)
+    yaw_rate = np.clip((yaws[2:] - yaws[:-2]) / legs_t, -limits.yaw_rate, limits.yaw_rate) * 0.5
+    return np.concatenate([v, yaw_rate[:, None]], axis=1)
+
+
+def unwrap_yaws(yaw0: float, yaw_goal: float, fractions: np.ndarray) -> np.ndarray:
+    """Headings along a path: the shortest turn from yaw0 to yaw_goal, split by path fractions."""
+    delta = (yaw_goal - yaw0 + math.pi) % (2 * math.pi) - math.pi
+    return yaw0 + delta * np.asarray(fractions, float)

@@ -1,0 +1,153 @@
+"""Library feasibility on synthetic scenes, checked independently: 1 ms samples, finite differences,
+the ground-truth mesh (trimesh proximity), the start state and the candidate at rest."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from flightrecon.config import load_config
+from flightrecon.control.trajectory import FlatState, Trajectory
+from flightrecon.planning.feasibility import REASONS, Planner
+
+START = np.array([0.0, 0.0, 1.2])
+
+
+def _scene() -> trimesh.Trimesh:
+    """A closed 6 x 5 x 3 m room, a full-height wall 0.5 m ahead of the start, and a closed crate."""
+    room = trimesh.creation.box(extents=[6.0, 5.0, 3.0])
+    room.apply_translation([0.0, 0.0, 1.5])
+    room.invert()
+    wall = trimesh.creation.box(extents=[0.1, 2.0, 3.0])
+    wall.apply_translation([0.5, 0.0, 1.5])
+    crate = trimesh.creation.box(extents=[0.8, 0.8, 0.8])
+    crate.apply_translation([-1.2, 1.2, 0.4])
+    return trimesh.util.concatenate([room, wall, crate])
+
+
+WORKSPACE = np.array([[-3.0, -2.5, 0.0], [3.0, 2.5, 3.0]])
+
+
+@pytest.fixture(scope="module")
+def setup():
+    mesh = _scene()
+    cfg = load_config(None, ["planner.use_ground_truth=true"])
+    planner = Planner(cfg, WORKSPACE, mesh, start_position=START)
+    return mesh, cfg, planner
+
+
+def _independent_check(tr: Trajectory, cfg, start: FlatState, goal: np.ndarray, goal_yaw: float,
+                       field, mesh=None):
+    """Sample at 1 ms through the public protocol's arrays and re-derive everything."""
+    p, l = cfg.planner, cfg.drone
+    dt = 1e-3
+    t = np.arange(0.0, tr.duration + 3 * dt, dt)  # a few samples at rest past the end
+    pos, vel, acc, _ = tr.evaluate(t)
+    # The protocol's sample() agrees with the arrays.
+    for k in (0, len(t) // 3, len(t) - 1):
+        s = tr.sample(float(t[k]))
+        np.testing.assert_allclose(s.position, pos[k, :3], atol=1e-9)
+        assert s.yaw == pytest.approx(pos[k, 3], abs=1e-9)
+    # Derivatives by finite differences (independent of the stored ones), with the limits.
+    v_fd = np.diff(pos, axis=0) / dt
+    a_fd = np.diff(v_fd, axis=0) / dt
+    assert np.abs(v_fd[:, :3]).max() <= p.max_vel * (1 + 1e-3) + 1e-6
+    assert np.abs(a_fd[:, :3]).max() <= p.max_acc * 1.01 + 1e-3
+    assert np.abs(v_fd[:, 3]).max() <= math.radians(p.max_yaw_rate_deg) * (1 + 1e-3) + 1e-6
+    tilt = np.degrees(np.arctan2(np.linalg.norm(a_fd[:, :2], axis=1), a_fd[:, 2] + 9.81))
+    assert tilt.max() <= l.max_tilt_deg
+    assert tr.duration <= p.max_duration
+    # Starts at the current state, ends at the candidate at rest.
+    np.testing.assert_allclose(pos[0, :3], start.position, atol=1e-9)
+    np.testing.assert_allclose(vel[0, :3], start.velocity, atol=1e-9)
+    assert pos[0, 3] == pytest.approx(start.yaw, abs=1e-9)
+    end = tr.sample(tr.duration)
+    np.testing.assert_allclose(end.position, goal, atol=1e-6)
+    np.testing.assert_allclose(end.velocity, 0.0, atol=1e-6)
+    np.testing.assert_allclose(end.acceleration, 0.0, atol=1e-6)
+    assert math.remainder(end.yaw - goal_yaw, 2 * math.pi) == pytest.approx(0.0, abs=1e-6)
+    assert end.yaw_rate == pytest.approx(0.0, abs=1e-9)
+    # Clearance on every 1 ms sample: on the planning field, and on the true mesh within its accuracy.
+    required = l.body_radius + p.safety_margin
+    assert field.distance(pos[:, :3]).min() >= required - 1e-6
+    if mesh is not None:
+        _, d_mesh, _ = trimesh.proximity.ProximityQuery(mesh).on_surface(pos[::2, :3])
+        assert d_mesh.min() >= required - field.accuracy
+        assert d_mesh.min() > l.body_radius  # never touches
+
+
+def test_every_feasible_library_trajectory_passes_independent_checks(setup):
+    mesh, cfg, planner = setup
+    start = FlatState(START, np.zeros(3), np.zeros(3), 0.3, 0.0)
+    results = planner.check_library(start)
+    assert len(results) == 198
+    assert {r.reason for r in results} <= set(REASONS)
+    feasible = [r for r in results if r.feasible]
+    assert 50 < len(feasible) < 198  # the wall ahead rules some out
+    rng = np.random.default_rng(0)
+    for k, r in enumerate(feasible):
+        assert isinstance(r.trajectory, Trajectory)
+        assert r.duration == pytest.approx(r.trajectory.duration)
+        assert r.length >= np.linalg.norm(r.position - START) - 1e-6
+        check_mesh = k % 8 == 0 or r.used_ompl or rng.random() < 0.05
+        _independent_check(r.trajectory, cfg, start, r.position, r.yaw, planner.field,
+                           mesh if check_mesh else None)
+    # Candidates through the wall are not feasible as straight legs: they needed OMPL or failed.
+    ahead = [r for r in results if r.position[0] > 0.7 and abs(r.position[1]) < 0.3]
+    assert all(r.used_ompl or not r.feasible for r in ahead)
+
+
+def test_candidate_behind_a_wall_gets_an_ompl_path_around_it(setup):
+    mesh, cfg, planner = setup
+    start = FlatState(START, np.zeros(3), np.zeros(3), 0.0, 0.0)
+    goal = np.array([1.3, 0.2, 1.2])
+    (r,) = planner.check(start, goal[None], np.array([2.0]))
+    assert r.feasible and r.used_ompl, r.reason
+    # The path goes around the wall's end (|y| > 1 + clearance) rather than through it.
+    pos = r.trajectory.evaluate(np.linspace(0, r.duration, 400))[0][:, :3]
+    crossing = pos[np.abs(pos[:, 0] - 0.5) < 0.06]
+    assert len(crossing) and np.all(np.abs(crossing[:, 1]) > 1.0 + 0.3)
+    _independent_check(r.trajectory, cfg, start, goal, 2.0, planner.field, mesh)
+
+
+def test_moving_start_state_is_continued(setup):
+    mesh, cfg, planner = setup
+    start = FlatState(START, np.array([-0.3, 0.2, 0.0]), np.zeros(3), 1.0, 0.2)
+    (r,) = planner.check(start, np.array([[-0.5, -0.4, 1.5]]), np.array([-2.5]))
+    assert r.feasible, r.reason
+    _independent_check(r.trajectory, cfg, start, np.array([-0.5, -0.4, 1.5]), -2.5, planner.field, mesh)
+    np.testing.assert_allclose(r.trajectory.sample(0.0).yaw_rate, 0.2, atol=1e-9)
+
+
+def test_rejections_name_their_reason(setup):
+    mesh, cfg, planner = setup
+    start = FlatState(START, np.zeros(3), np.zeros(3), 0.0, 0.0)
+    goals = np.array([
+        [-1.2, 1.2, 0.4],   # inside the closed crate
+        [0.5, 0.0, 1.2],    # inside the wall
+        [0.0, 0.0, 3.5],    # above the workspace
+        [-2.85, 0.0, 1.2],  # free but 0.15 m from the room wall
+    ])
+    reasons = [r.reason for r in planner.check(start, goals, np.zeros(4))]
+    assert reasons == ["in_obstacle", "in_obstacle", "out_of_bounds", "clearance"]
+
+
+def test_too_long_and_no_path():
+    mesh = _scene()
+    cfg = load_config(None, ["planner.use_ground_truth=true", "planner.max_duration=1.0",
+                             "planner.ompl_time_limit=0.02"])
+    planner = Planner(cfg, WORKSPACE, mesh, start_position=START)
+    start = FlatState(START, np.zeros(3), np.zeros(3), 0.0, 0.0)
+    (far,) = planner.check(start, np.array([[-2.0, -1.5, 1.2]]), np.zeros(1))
+    assert far.reason == "too_long" and far.trajectory is None
+    # A sealed pocket: the goal is free in the field but enclosed by a closed box shell.
+    pocket = trimesh.creation.box(extents=[1.2, 1.2, 1.2])
+    pocket.apply_translation([2.0, -1.5, 1.2])
+    pocket.invert()
+    cfg2 = load_config(None, ["planner.use_ground_truth=true"])
+    planner2 = Planner(cfg2, WORKSPACE, trimesh.util.concatenate([mesh, pocket]))  # no free seed
+    (r,) = planner2.check(start, np.array([[2.0, -1.5, 1.2]]), np.zeros(1))
+    assert r.reason == "no_path"
