@@ -152,6 +152,14 @@ class BudgetConfig:
 
 
 @dataclass(frozen=True)
+class EvaluationConfig:
+    views: int = _f(8, 1, 1000, doc="fixed evaluation viewpoints per scene, shared by every method and seed")
+    seed: int = _f(0, 0, None, doc="seed of the evaluation viewpoints (independent of the run's seed)")
+    every: int = _f(10, 0, 100000, doc="evaluate the map every this many frames during a flight; 0: at the end only")
+    height_band: float = _f(0.4, 0.0, 3.0, doc="viewpoint heights are take-off height +- this (m)")
+
+
+@dataclass(frozen=True)
 class OutputConfig:
     run_root: str = _f("runs")
     record: bool = _f(True, doc="write recording.rrd")
@@ -172,6 +180,7 @@ class ScenarioConfig:
     reliability: ReliabilityConfig = field(default_factory=ReliabilityConfig)
     selector: SelectorConfig = field(default_factory=SelectorConfig)
     budget: BudgetConfig = field(default_factory=BudgetConfig)
+    evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
 
 
