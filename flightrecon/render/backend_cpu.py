@@ -41,7 +41,8 @@ class RasterizeCPU(torch.autograd.Function):
         args, cams, fwd = saved[:6], saved[6:8], list(saved[8:])
         grads = [g.contiguous() if g is not None else torch.zeros_like(o)
                  for g, o in zip((gF, gA, gN, gZ, gM, gM2, gMed), fwd[:7])]
-        g = load().backward(*args, *cams, *ctx.meta, fwd, grads, False)
+        kept = fwd[:6] + fwd[7:9]  # the kernel re-derives everything else; median is not needed
+        g = load().backward(*args, *cams, *ctx.meta, kept, grads, False)
         return (*g, None, None, None, None, None, None, None, None, None)
 
 
