@@ -1,0 +1,131 @@
+"""Occupancy map from depth: surfaces occupied, rays free, the unseen unknown; checked against the
+true mesh with rays cast independently by trimesh (different pixels than the depth image's)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from flightrecon.config import load_config
+from flightrecon.geometry import camera_pose, intrinsics, pixel_rays
+from flightrecon.planning.distance_field import DistanceField
+from flightrecon.planning.occupancy import FREE, UNKNOWN, OccupancyMap
+
+H = 0.05
+
+
+def _room() -> trimesh.Trimesh:
+    room = trimesh.creation.box(extents=[6.0, 5.0, 3.0])
+    room.apply_translation([0.0, 0.0, 1.5])
+    room.invert()
+    crate = trimesh.creation.box(extents=[0.8, 1.0, 1.0])
+    crate.apply_translation([1.5, 0.0, 0.8])
+    return trimesh.util.concatenate([room, crate])
+
+
+def _raycast_depth(mesh, K, T_wc, width, height) -> np.ndarray:
+    """z-depth image by trimesh ray casting (0 where no hit)."""
+    rays = pixel_rays(width, height, K).reshape(-1, 3)
+    dirs = rays @ T_wc[:3, :3].T
+    origins = np.repeat(T_wc[None, :3, 3], len(dirs), axis=0)
+    loc, ray_idx, _ = mesh.ray.intersects_location(origins, dirs, multiple_hits=False)
+    depth = np.zeros(len(rays))
+    depth[ray_idx] = ((loc - T_wc[:3, 3]) @ T_wc[:3, :3])[:, 2]
+    return depth.reshape(height, width).astype(np.float32)
+
+
+def _probe_rays(mesh, T_wc, K, width, height, n, rng):
+    """Independent rays through random (non-center) pixel positions: origins, unit dirs, hit ranges.
+
+    The outer 10% of the image is left out: a voxel whose center falls just outside the image is
+    (rightly) not carved even if a ray through its corner was seen."""
+    uv = rng.uniform([0.1 * width, 0.1 * height], [0.9 * width, 0.9 * height], (n, 2))
+    d_cam = np.concatenate([(uv - K[:2, 2]) / np.diag(K)[:2], np.ones((n, 1))], axis=1)
+    dirs = d_cam @ T_wc[:3, :3].T
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    origins = np.repeat(T_wc[None, :3, 3], n, axis=0)
+    loc, idx, _ = mesh.ray.intersects_location(origins, dirs, multiple_hits=False)
+    rng_hit = np.full(n, np.nan)
+    rng_hit[idx] = np.linalg.norm(loc - origins[idx], axis=1)
+    ok = np.isfinite(rng_hit)
+    return origins[ok], dirs[ok], rng_hit[ok]
+
+
+def _assert_surfaces_occupied_rays_free(occ, mesh, probes):
+    origins, dirs, ranges = probes
+    hits = origins + dirs * ranges[:, None]
+    # Every surface point lies within a voxel of an occupied voxel (the field of the occupied set
+    # reads center distance minus half a voxel).
+    occupied_field = DistanceField.from_blocked(occ.occupied(), occ.origin, H, signed=False)
+    assert np.mean(occupied_field.distance(hits) <= H) > 0.98
+    # Points along the rays are free, except within a voxel or so of a surface.
+    fr = np.random.default_rng(1).uniform(0.1, 0.9, len(ranges))
+    mids = origins + dirs * (fr * ranges)[:, None]
+    _, d_surf, _ = trimesh.proximity.ProximityQuery(mesh).on_surface(mids)
+    away = (d_surf > 2 * H) & (fr * ranges > 0.2)
+    assert away.sum() > 50
+    assert np.mean(occ.state(mids[away]) == FREE) > 0.97  # the rest: voxel centers behind an edge
+    # Behind the surfaces nothing was seen.
+    behind = hits + dirs * 0.4
+    inside_room = np.all(np.abs(behind[:, :2]) < [2.9, 2.4], axis=1) & (behind[:, 2] > 0.1) & (behind[:, 2] < 2.9)
+    assert np.mean(occ.state(behind[inside_room]) != FREE) > 0.97
+
+
+def test_synthetic_depth_marks_surfaces_occupied_rays_free_and_the_rest_unknown():
+    mesh = _room()
+    w, h = 96, 72
+    K = intrinsics(w, h, 90.0)
+    occ = OccupancyMap(np.array([[-3.3, -2.8, -0.3], [3.3, 2.8, 3.3]]), H)
+    T = camera_pose([-0.5, 0.2, 1.2], 0.0)
+    occ.integrate(_raycast_depth(mesh, K, T, w, h), K, T)
+    _assert_surfaces_occupied_rays_free(occ, mesh, _probe_rays(mesh, T, K, w, h, 400, np.random.default_rng(0)))
+    # Behind the camera nothing is known; the crate's hidden interior stays unknown.
+    assert occ.state(np.array([[-2.0, 0.2, 1.2]]))[0] == UNKNOWN
+    assert occ.state(np.array([[1.6, 0.0, 0.8]]))[0] == UNKNOWN
+    # Unknown counts as blocked for planning; the free sphere of the body becomes free.
+    field = occ.distance_field()
+    assert field.distance(np.array([[-2.0, 0.2, 1.2]]))[0] < 0
+    occ.mark_free_sphere(np.array([-0.5, 0.2, 1.2]), 0.4)
+    assert occ.state(np.array([[-0.5, 0.2, 1.55], [-0.85, 0.2, 1.2]])).tolist() == [FREE, FREE]
+
+
+def test_invalid_depth_carves_nothing_and_evidence_accumulates():
+    mesh = _room()
+    w, h = 64, 48
+    K = intrinsics(w, h, 90.0)
+    T = camera_pose([0.0, 0.0, 1.2], np.pi)
+    depth = _raycast_depth(mesh, K, T, w, h)
+    occ = OccupancyMap(np.array([[-3.3, -2.8, -0.3], [3.3, 2.8, 3.3]]), H)
+    occ.integrate(np.zeros_like(depth), K, T)
+    assert not occ.observed.any()
+    occ.integrate(depth, K, T)
+    occupied = occ.occupied().sum()
+    occ.integrate(depth, K, T)
+    assert occ.occupied().sum() == occupied  # the same view confirms, never erodes
+    assert occ.logodds.max() == pytest.approx(2 * occ.hit)
+
+
+@pytest.mark.slow
+def test_occupancy_from_rendered_depth_marks_surfaces_occupied_and_rays_free():
+    from flightrecon.scene.source import procedural_scene
+    from flightrecon.sim.camera import RGBDCamera
+    from flightrecon.sim.world import build_world
+
+    cfg = load_config(None, ["scene.name=room0"])
+    scene = procedural_scene("room0", 0)
+    mesh = scene.trimesh
+    world = build_world(scene, cfg, with_drone=False)
+    w, h = 160, 120
+    cam = RGBDCamera(world, w, h, 90.0, 0.05, 10.0)
+    occ = OccupancyMap(np.array(scene.meta["room_box"]) + np.array([[-0.4], [0.4]]), H)
+    rng = np.random.default_rng(0)
+    probes = []
+    for k in range(4):
+        T = camera_pose([0.0, 0.0, 1.2], k * np.pi / 2)
+        _, depth = cam.render(T)
+        occ.integrate(depth, cam.K, T)
+        probes.append(_probe_rays(mesh, T, cam.K, w, h, 150, rng))
+    cam.close()
+    origins, dirs, ranges = (np.concatenate(x) for x in zip(*probes))
+    _assert_surfaces_occupied_rays_free(occ, mesh, (origins, dirs, ranges))
