@@ -31,8 +31,9 @@ class ControlOutput:
     R_des: np.ndarray  # (3, 3) desired attitude
 
 
-def _vee(S: np.ndarray) -> np.ndarray:
-    return np.array([S[2, 1], S[0, 2], S[1, 0]])
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """3-vector cross product (np.cross costs ~40x more on single vectors, and this runs at 200 Hz)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 class SE3Controller:
@@ -73,14 +74,15 @@ class SE3Controller:
     def compute(self, p: np.ndarray, v: np.ndarray, R: np.ndarray, omega: np.ndarray, ref: FlatState) -> ControlOutput:
         """Thrust and torques for the state (p, v world; R body-to-world; omega body rates)."""
         f = self.desired_acceleration(p, v, ref)
-        b3 = f / np.linalg.norm(f)
+        b3 = f / math.sqrt(f @ f)
         heading = np.array([math.cos(ref.yaw), math.sin(ref.yaw), 0.0])
-        b2 = np.cross(b3, heading)
-        b2 /= np.linalg.norm(b2)
-        R_des = np.column_stack([np.cross(b2, b3), b2, b3])
+        b2 = _cross(b3, heading)
+        b2 /= math.sqrt(b2 @ b2)
+        R_des = np.array([_cross(b2, b3), b2, b3]).T
         thrust = self.mass * float(f @ R[:, 2])
-        e_R = 0.5 * _vee(R_des.T @ R - R.T @ R_des)
+        M = R_des.T @ R  # R^T R_des is its transpose, so vee(M - M^T) / 2 is the attitude error
+        e_R = 0.5 * np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
         # Yaw-rate feed-forward: the reference turns about world z; in body axes that is R^T e3.
         e_w = omega - R[2, :] * ref.yaw_rate
-        torque = -self.kr * e_R - self.kw * e_w + np.cross(omega, self.J * omega)
+        torque = -self.kr * e_R - self.kw * e_w + _cross(omega, self.J * omega)
         return ControlOutput(max(thrust, 0.0), torque, R_des)

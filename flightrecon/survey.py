@@ -1,0 +1,168 @@
+"""The scripted survey flight: take off, fly a loop of waypoints through the room, capture RGB-D.
+
+Waypoints lie on rays from the take-off column (scene meta 'spawn', kept free of furniture by the
+procedural scenes; the room center otherwise) at the take-off height, one ray per heading. Each ray
+is walked outward on the scene's distance field and stops where the drone's body radius plus the
+planner's safety margin would no longer fit, or at OUTER_SHARE of the way to the walls, so the straight leg from
+the center to every waypoint is clear. Consecutive waypoints are joined by a straight leg when that
+leg keeps the same clearance, otherwise through the center; the loop ends over the center. Legs are rest-to-rest moves within the
+planner's speed, acceleration, jerk and yaw limits. At every waypoint the drone settles (arrival
+detection) and captures one frame looking outward and one looking back across the room. The frames
+go to an RGB-D dataset (flightrecon.dataset) with the flown trajectory.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from flightrecon.config import ScenarioConfig, to_toml
+from flightrecon.dataset import DatasetWriter
+from flightrecon.errors import DataError, SceneError
+from flightrecon.fileio import write_text
+from flightrecon.planning.distance_field import DistanceField
+from flightrecon.scene.types import Scene
+
+N_RAYS = 8
+WALL_KEEP = 0.4  # waypoints stay this much farther from the room box than the clearance demands (m)
+OUTER_SHARE = 0.65  # of the way to the walls: outward views keep some context, not just a wall
+MIN_RADIUS = 0.3  # rays that cannot go this far from the center get no waypoint
+START_ABOVE_FLOOR = 0.05  # the drone starts resting just above the floor
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    position: np.ndarray
+    yaws: tuple[float, ...]  # headings of the captures taken here
+
+
+def takeoff_point(scene: Scene, cfg: ScenarioConfig) -> np.ndarray:
+    """Point above the spawn spot (or the room's center) at the take-off height."""
+    b = scene.bounds
+    spawn = scene.meta.get("spawn")
+    floor = float(scene.meta.get("floor_z", b[0, 2]))
+    xy = np.asarray(spawn, float)[:2] if spawn is not None else 0.5 * (b[0, :2] + b[1, :2])
+    return np.array([xy[0], xy[1], floor + cfg.sim.takeoff_height])
+
+
+def scene_distance_field(scene: Scene, cfg: ScenarioConfig, free_point: np.ndarray) -> DistanceField:
+    """Ground-truth field of the room; voxels not connected to `free_point` are solid."""
+    pad = cfg.drone.body_radius + cfg.planner.safety_margin + 2 * cfg.planner.voxel_size
+    bounds = scene.bounds + np.array([[-pad], [pad]])
+    return DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size, bounds,
+                                   free_seeds=np.asarray(free_point, float)[None], signed=False)
+
+
+def _clear(field: DistanceField, a: np.ndarray, b: np.ndarray, required: float) -> bool:
+    n = max(2, int(math.ceil(np.linalg.norm(b - a) / (0.25 * field.voxel_size))) + 1)
+    pts = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+    return bool(field.distance(pts).min() >= required)
+
+
+def survey_waypoints(scene: Scene, cfg: ScenarioConfig, field: DistanceField) -> list[Waypoint]:
+    """The loop of capture points (see the module doc), starting and ending near the center."""
+    center = takeoff_point(scene, cfg)
+    required = cfg.drone.body_radius + cfg.planner.safety_margin
+    if field.distance(center[None])[0] < required:
+        raise SceneError(f"scene '{scene.name}': the take-off point {np.round(center, 2).tolist()} has less than "
+                         f"{required:.2f} m clearance (drone.body_radius + planner.safety_margin)")
+    room = np.asarray(scene.meta.get("room_box", scene.bounds), float)
+    step = 0.5 * field.voxel_size
+    points = []
+    for k in range(N_RAYS):
+        theta = 2 * math.pi * k / N_RAYS
+        u = np.array([math.cos(theta), math.sin(theta), 0.0])
+        # Farthest distance along the ray inside the room box, less the kept margin.
+        with np.errstate(divide="ignore"):
+            limits = [((room[1, i] if u[i] > 0 else room[0, i]) - center[i]) / u[i]
+                      for i in range(2) if abs(u[i]) > 1e-9]
+        r_room = min(limits) - required - WALL_KEEP
+        radii = np.arange(0.0, max(r_room, 0.0) + 1e-9, step)
+        ok = field.distance(center + radii[:, None] * u) >= required
+        r = radii[np.argmin(ok)] - step if not ok.all() else (radii[-1] if len(radii) else 0.0)
+        r = min(r, OUTER_SHARE * max(r_room, 0.0))
+        if r >= MIN_RADIUS:
+            points.append((center + r * u, theta))
+    if not points:
+        raise SceneError(f"scene '{scene.name}': no survey waypoint has {required:.2f} m clearance around the "
+                         "take-off point")
+    route: list[Waypoint] = []
+    prev = center
+    for p, theta in points:
+        if not _clear(field, prev, p, required):
+            route.append(Waypoint(center, ()))
+        route.append(Waypoint(p, (theta, theta + math.pi)))
+        prev = p
+    route.append(Waypoint(center, ()))  # back over the take-off spot: the ray legs are clear
+    return route
+
+
+@dataclass
+class SurveyResult:
+    dataset: Path
+    frames: int
+    flight_time: float
+    contacts: int
+    min_clearance: float  # after take-off (m between the drone's enclosing sphere and the scene)
+    unsettled: int
+
+
+def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str], None] = print) -> SurveyResult:
+    """Fly the survey in `cfg`'s scene and write the dataset to `out_dir`."""
+    from flightrecon.scene.source import scene_from_config
+    from flightrecon.sim.camera import RGBDCamera
+    from flightrecon.sim.flight import Flight
+    from flightrecon.sim.safety import ClearanceMonitor
+    from flightrecon.sim.world import build_world
+
+    out_dir = Path(out_dir)
+    scene = scene_from_config(cfg.scene)
+    progress(f"scene {scene.name}: {len(scene.faces)} triangles; building the world and distance field")
+    world = build_world(scene, cfg)
+    center = takeoff_point(scene, cfg)
+    field = scene_distance_field(scene, cfg, center)
+    route = survey_waypoints(scene, cfg, field)
+    n_frames = sum(len(w.yaws) for w in route)
+    c = cfg.camera
+    camera = RGBDCamera(world, c.width, c.height, c.hfov_deg, c.near, c.far)
+    flight = Flight.from_world(world, cfg, ClearanceMonitor(field, cfg.drone.body_radius))
+    writer = DatasetWriter(out_dir, camera.K, c.width, c.height)
+    start = center.copy()
+    start[2] = float(scene.meta.get("floor_z", scene.bounds[0, 2])) + START_ABOVE_FLOOR + 0.03
+    flight.start(start, 0.0)
+    progress(f"take-off to {cfg.sim.takeoff_height:.2f} m; {len(route)} waypoints, {n_frames} frames")
+    flight.go_to(center, 0.0)
+    unsettled = 0 if flight.wait_until_arrived() else 1
+    airborne = len(flight.log)  # clearance is reported from here: on the floor it is negative by design
+    try:
+        for i, wp in enumerate(route):
+            for j, yaw in enumerate(wp.yaws or (None,)):
+                target_yaw = flight.last_reference.yaw if yaw is None else yaw
+                flight.go_to(wp.position, target_yaw)
+                if yaw is None:
+                    continue
+                if not flight.wait_until_arrived():
+                    unsettled += 1
+                flight.sync()
+                rgb, depth, T_wc = camera.render_named("drone_cam")
+                writer.add(rgb, depth, flight.estimated_camera_pose(T_wc), time=flight.time, T_wc_true=T_wc)
+                progress(f"[{len(writer.frames)}/{n_frames}] waypoint {i + 1}/{len(route)} "
+                         f"at {np.round(wp.position, 2).tolist()} yaw {math.degrees(yaw) % 360:.0f} deg, "
+                         f"t = {flight.time:.1f} s")
+    finally:
+        camera.close()
+        if writer.frames:
+            writer.close(flight.log.columns())
+            write_text(out_dir / "config.toml", to_toml(cfg))
+    if not writer.frames:
+        raise DataError(f"the survey captured no frames; nothing written to {out_dir}")
+    clear = flight.log["clearance"][airborne:]
+    result = SurveyResult(out_dir, len(writer.frames), flight.time, len(flight.log.events),
+                          float(np.nanmin(clear)) if len(clear) else math.nan, unsettled)
+    for e in flight.log.events:
+        progress("  " + e.describe())
+    return result
