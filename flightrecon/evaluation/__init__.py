@@ -1,0 +1,1 @@
+"""Evaluation: fixed viewpoints per scene, rendering and mesh metrics, tables and figures."""

@@ -1,0 +1,356 @@
+"""The closed loop of active reconstruction (design.md, "One active step").
+
+Each step: the drone has settled at a viewpoint and captures RGB-D at its actual simulated pose;
+the mapper adds and optimizes splats; the selector updates its state (reliability for 2D
+GauSS-MI); the occupancy map takes the depth; the planner checks the candidate library around the
+drone; the selector scores the feasible candidates; the controller flies the best one's trajectory
+in the fixed-rate cycle until arrival. The first `budget.initial_views` frames turn in place at the
+take-off point. When no candidate is feasible the loop recovers (turn in place, then back-track to
+earlier viewpoints, then hover) and logs it; it never crashes on that.
+
+This is the only module that knows all the others. After every frame it writes the per-frame CSV
+and a checkpoint, so `Mission.resume(run_dir)` continues a killed run and ends with the same result
+as an uninterrupted one (OMPL is reseeded per step from the seed and the frame index, so resumed
+planning draws the same random numbers).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import logging
+import math
+import pickle
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from flightrecon.active.selectors import Observation, make_selector
+from flightrecon.config import ScenarioConfig, load_config, to_toml
+from flightrecon.control.trajectory import FlatState
+from flightrecon.dataset import write_trajectory_csv
+from flightrecon.errors import FlightReconError
+from flightrecon.evaluation.views import EvaluationSet
+from flightrecon.fileio import atomic_path, write_json, write_text
+from flightrecon.geometry import camera_pose_from_body, make_pose, rot_z
+from flightrecon.mapping.mapper import OnlineMapper
+from flightrecon.mapping.ply import save_map
+from flightrecon.planning.distance_field import DistanceField
+from flightrecon.planning.feasibility import CandidateResult, Planner
+from flightrecon.planning.paths import seed_ompl
+from flightrecon.scene.source import scene_from_config
+from flightrecon.sim.camera import RGBDCamera
+from flightrecon.sim.flight import Flight, FlightDiverged
+from flightrecon.sim.quadrotor import CAMERA, camera_offset
+from flightrecon.sim.safety import ClearanceMonitor
+from flightrecon.sim.world import build_world
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT = "checkpoint.pkl"
+FRAME_COLUMNS = ("frame", "sim_time", "t_capture", "t_map", "t_select_update", "t_plan", "t_score",
+                 "t_fly_sim", "n_splats", "n_candidates", "n_feasible", "n_ompl", "chosen_score",
+                 "flight_time", "flight_distance", "recovery", "frame_psnr", "frame_depth_l1_cm",
+                 "eval_psnr", "eval_depth_l1_cm", "min_clearance", "contacts")
+
+
+@dataclass
+class MissionState:
+    """Everything the loop itself carries between frames (the components carry their own)."""
+
+    frame: int = 0
+    records: list = field(default_factory=list)
+    events: list = field(default_factory=list)
+    visited: list = field(default_factory=list)  # (position, yaw) of every capture
+    flight_distance: float = 0.0
+    wall_time: float = 0.0
+
+
+def flight_region(scene, cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(workspace box (2,3) for candidates, take-off point) from the scene's metadata or bounds.
+
+    Procedural scenes give their room box and spawn point; a real scan uses its bounds shrunk by the
+    drone's clearance and its center, which the user can move with the scene options."""
+    meta = scene.meta
+    box = np.asarray(meta.get("room_box", scene.bounds), float)
+    spawn = np.asarray(meta.get("spawn", [(box[0, 0] + box[1, 0]) / 2, (box[0, 1] + box[1, 1]) / 2, box[0, 2]]),
+                       float)
+    pad = cfg.drone.body_radius + cfg.planner.safety_margin
+    work = box + np.array([[pad, pad, pad], [-pad, -pad, -pad]])
+    start = spawn + np.array([0.0, 0.0, cfg.sim.takeoff_height])
+    return work, start
+
+
+class Mission:
+    """One active-reconstruction flight; `run()` goes until the frame budget, checkpointing."""
+
+    def __init__(self, cfg: ScenarioConfig, run_dir: str | Path, *, progress: bool = True) -> None:
+        self.cfg = cfg
+        self.run_dir = Path(run_dir)
+        self.progress = progress
+        c = cfg.camera
+        self.scene = scene_from_config(cfg.scene)
+        self.world = build_world(self.scene, cfg)
+        self.camera = RGBDCamera(self.world, c.width, c.height, c.hfov_deg, c.near, c.far)
+        self.K = self.camera.K
+        self.workspace, self.start = flight_region(self.scene, cfg)
+        pad = cfg.drone.body_radius + cfg.planner.safety_margin + 0.2
+        self.truth = DistanceField.from_mesh(self.scene.trimesh, cfg.planner.voxel_size,
+                                             self.workspace + np.array([[-pad], [pad]]), signed=False)
+        self.flight = Flight.from_world(self.world, cfg, ClearanceMonitor(self.truth, cfg.drone.body_radius))
+        self.cam_offset = camera_offset(cfg.drone.arm_length)
+        self.planner = Planner(cfg, self.workspace, self.scene.trimesh, self.start)
+        self.mapper = OnlineMapper(cfg.mapper, near=c.near, far=c.far, seed=cfg.seed)
+        self.selector = make_selector(cfg)
+        self.evaluation = EvaluationSet.for_mission(self.camera, self.truth, self.workspace, float(self.start[2]), cfg)
+        self.state = MissionState()
+
+    # ------------------------------------------------------------------ run control
+    @classmethod
+    def resume(cls, run_dir: str | Path, *, progress: bool = True) -> "Mission":
+        """Rebuild the mission from run_dir/config.toml and restore its last checkpoint."""
+        run_dir = Path(run_dir)
+        cfg_path = run_dir / "config.toml"
+        ckpt = run_dir / CHECKPOINT
+        if not cfg_path.is_file():
+            raise FlightReconError(f"cannot resume: {cfg_path} not found (is {run_dir} a run folder?)")
+        mission = cls(load_config(cfg_path), run_dir, progress=progress)
+        if ckpt.is_file():
+            mission._load_checkpoint(ckpt)
+        return mission
+
+    def run(self) -> dict:
+        """Fly until the frame budget; returns the final metrics (also written to metrics.json)."""
+        budget = self.cfg.budget.frames
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        write_text(self.run_dir / "config.toml", to_toml(self.cfg))
+        if self.state.frame == 0:
+            self._take_off()
+        bar = _progress(budget, self.state.frame, self.progress)
+        while self.state.frame < budget:
+            t0 = time.perf_counter()
+            row = self._step(last=self.state.frame == budget - 1)
+            self.state.wall_time += time.perf_counter() - t0
+            self.state.records.append(row)
+            self.state.frame += 1
+            self._save_frame_outputs()
+            if self.cfg.output.checkpoint:
+                self._save_checkpoint()
+            bar.update(row)
+        bar.close()
+        return self._finish()
+
+    # ------------------------------------------------------------------ one step
+    def _take_off(self) -> None:
+        ground = self.start.copy()
+        ground[2] = self.start[2] - self.cfg.sim.takeoff_height + self.cfg.drone.body_radius * 0.5
+        self.flight.start(ground, 0.0)
+        self.flight.go_to(self.start, 0.0)
+        self.flight.wait_until_arrived()
+
+    def _step(self, last: bool) -> dict:
+        cfg = self.cfg
+        row: dict = {"frame": self.state.frame}
+        t = time.perf_counter()
+        rgb, depth, T_true = self.camera.render_named(CAMERA)
+        T_wc = self.flight.estimated_camera_pose(T_true)
+        obs = Observation(self.state.frame, rgb, depth, self.K, T_wc)
+        body = self.flight.state
+        self.state.visited.append((body.position.copy(), float(body.yaw)))
+        row["t_capture"] = time.perf_counter() - t
+        row["sim_time"] = self.flight.time
+
+        t = time.perf_counter()
+        self.mapper.add_frame(rgb, depth, self.K, T_wc)
+        row["t_map"] = time.perf_counter() - t
+        t = time.perf_counter()
+        diag = self.selector.observe(self.mapper, obs)
+        row["t_select_update"] = time.perf_counter() - t
+        row["n_splats"] = len(self.mapper.map)
+        row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(self.mapper, obs)
+        if diag.get("note"):
+            self._event(diag["note"])
+        self.planner.integrate(depth, self.K, T_wc, body_position=body.position)
+
+        every = cfg.evaluation.every
+        if last or (every > 0 and self.state.frame % every == 0):
+            q = self.evaluation.evaluate(self.mapper)
+            row["eval_psnr"], row["eval_depth_l1_cm"] = q["psnr"], q["depth_l1_cm"]
+        if last:
+            return row
+        self._choose_and_fly(row)
+        return row
+
+    def _choose_and_fly(self, row: dict) -> None:
+        seed_ompl(self.cfg.seed * 1_000_003 + self.state.frame)
+        s = self.flight.state
+        start = FlatState(s.position.copy(), np.zeros(3), np.zeros(3), float(s.yaw), 0.0)
+        t = time.perf_counter()
+        if self.state.frame + 1 < self.cfg.budget.initial_views:
+            step = 2 * math.pi / self.cfg.budget.initial_views
+            results = self.planner.check(start, s.position[None], np.array([s.yaw + step]))
+        else:
+            results = self.planner.check_library(start)
+        row["t_plan"] = time.perf_counter() - t
+        feasible = [r for r in results if r.feasible]
+        row["n_candidates"], row["n_feasible"] = len(results), len(feasible)
+        row["n_ompl"] = sum(r.used_ompl for r in results)
+        t = time.perf_counter()
+        chosen: CandidateResult | None = None
+        if len(feasible) == 1:
+            chosen, row["chosen_score"] = feasible[0], math.nan
+        elif feasible:
+            scores = np.asarray(self.selector.score(self.mapper, self.candidate_poses(feasible)), float)
+            best = int(np.argmax(scores))
+            chosen, row["chosen_score"] = feasible[best], float(scores[best])
+        row["t_score"] = time.perf_counter() - t
+        row["recovery"] = ""
+        if chosen is None:
+            chosen = self._recover(start, results, row)
+        t = time.perf_counter()
+        before = len(self.flight.log)
+        if chosen is not None:
+            try:
+                self.flight.fly(chosen.trajectory)
+                if not self.flight.wait_until_arrived():
+                    self._event(f"frame {self.state.frame}: did not settle at the chosen view; capturing anyway")
+            except FlightDiverged as exc:
+                raise FlightReconError(f"{exc} (run folder {self.run_dir} keeps the frames so far)") from None
+            row["flight_time"] = float(chosen.duration)
+            self.state.flight_distance += float(chosen.length)
+        else:
+            self.flight.hover(1.0)
+            row["flight_time"] = 1.0
+        row["flight_distance"] = self.state.flight_distance
+        row["t_fly_sim"] = time.perf_counter() - t
+        flown = self.flight.log.slice_from(before)
+        clear = flown.columns()["clearance"] if len(flown) else np.array([np.nan])
+        row["min_clearance"] = float(np.nanmin(clear)) if np.isfinite(clear).any() else math.nan
+        row["contacts"] = len(self.flight.log.events)
+        for ev in flown.events:
+            self._event(f"frame {self.state.frame}: contact {ev.describe()}")
+
+    def _recover(self, start: FlatState, results: list[CandidateResult], row: dict) -> CandidateResult | None:
+        """No feasible candidate: turn in place, else back-track to an earlier viewpoint, else hover."""
+        reasons = {}
+        for r in results:
+            reasons[r.reason] = reasons.get(r.reason, 0) + 1
+        turns = start.yaw + np.array([math.pi / 2, -math.pi / 2, math.pi])
+        for r in self.planner.check(start, np.repeat(start.position[None], 3, 0), turns):
+            if r.feasible:
+                row["recovery"] = "turn"
+                self._event(f"frame {self.state.frame}: no feasible candidate ({reasons}); turning in place")
+                return r
+        back = self.state.visited[-2::-1][:5]
+        if back:
+            pos = np.array([p for p, _ in back])
+            yaws = np.array([y for _, y in back])
+            for r in self.planner.check(start, pos, yaws):
+                if r.feasible:
+                    row["recovery"] = "backtrack"
+                    self._event(f"frame {self.state.frame}: no feasible candidate ({reasons}); back-tracking")
+                    return r
+        row["recovery"] = "hover"
+        self._event(f"frame {self.state.frame}: no feasible candidate or recovery ({reasons}); hovering")
+        return None
+
+    def candidate_poses(self, results: list[CandidateResult]) -> np.ndarray:
+        """Camera T_wc [C,4,4] the drone would have at each candidate (body at rest, level)."""
+        pitch = self.cfg.camera.pitch_deg
+        return np.stack([camera_pose_from_body(make_pose(rot_z(r.yaw), r.position), self.cam_offset, pitch)
+                         for r in results])
+
+    def _event(self, text: str) -> None:
+        log.info(text)
+        self.state.events.append(text)
+
+    # ------------------------------------------------------------------ outputs
+    def _save_frame_outputs(self) -> None:
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=FRAME_COLUMNS, restval="", extrasaction="ignore")
+        writer.writeheader()
+        for r in self.state.records:
+            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+        write_text(self.run_dir / "frames.csv", buf.getvalue())
+        write_text(self.run_dir / "events.log", "".join(e + "\n" for e in self.state.events))
+
+    def _finish(self) -> dict:
+        save_map(self.mapper.map, self.run_dir / "map.ply")
+        write_trajectory_csv(self.run_dir / "trajectory.csv", self.flight.log.columns())
+        final = self.evaluation.evaluate(self.mapper)
+        rec = self.state.records
+        metrics = {
+            "scenario": self.cfg.name, "method": self.cfg.selector.method, "seed": self.cfg.seed,
+            "frames": len(rec), "splats": len(self.mapper.map),
+            "map_mb": (self.run_dir / "map.ply").stat().st_size / 1e6,
+            "flight_distance_m": self.state.flight_distance, "sim_time_s": self.flight.time,
+            "wall_time_s": self.state.wall_time, "contacts": len(self.flight.log.events),
+            "recoveries": sum(1 for r in rec if r.get("recovery")),
+            "eval": final,
+            "mean_times_s": {k: float(np.mean([r[k] for r in rec if k in r]))
+                             for k in ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
+                             if any(k in r for r in rec)},
+        }
+        write_json(self.run_dir / "metrics.json", metrics)
+        return metrics
+
+    # ------------------------------------------------------------------ checkpoints
+    def _save_checkpoint(self) -> None:
+        m, d = self.world.model, self.world.data
+        spec = mujoco.mjtState.mjSTATE_INTEGRATION
+        sim = np.empty(mujoco.mj_stateSize(m, spec))
+        mujoco.mj_getState(m, d, sim, spec)
+        payload = {
+            "sim": sim, "flight": {"last_reference": self.flight.last_reference, "rng": self.flight._rng,
+                                   "log": self.flight.log, "controller": self.flight.controller},
+            "mapper": self.mapper, "planner": self.planner, "selector": self.selector, "mission": self.state,
+        }
+        with atomic_path(self.run_dir / CHECKPOINT) as tmp:
+            with open(tmp, "wb") as f:
+                pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
+
+    def _load_checkpoint(self, path: Path) -> None:
+        try:
+            with open(path, "rb") as f:
+                payload = pickle.load(f)
+        except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
+            raise FlightReconError(f"checkpoint {path} cannot be read ({exc}); delete it to restart the run") from None
+        m, d = self.world.model, self.world.data
+        mujoco.mj_setState(m, d, payload["sim"], mujoco.mjtState.mjSTATE_INTEGRATION)
+        mujoco.mj_forward(m, d)
+        fl = payload["flight"]
+        self.flight.last_reference, self.flight._rng = fl["last_reference"], fl["rng"]
+        self.flight.log, self.flight.controller = fl["log"], fl["controller"]
+        self.mapper, self.planner, self.selector = payload["mapper"], payload["planner"], payload["selector"]
+        self.state = payload["mission"]
+
+
+class _progress:
+    """A progress bar with the live figures a user watches (tqdm), or nothing."""
+
+    def __init__(self, total: int, done: int, enabled: bool) -> None:
+        self.bar = None
+        if enabled:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=done, unit="frame", dynamic_ncols=True)
+
+    def update(self, row: dict) -> None:
+        if self.bar is None:
+            return
+        post = {"splats": row.get("n_splats"), "feasible": row.get("n_feasible"),
+                "psnr": _fmt(row.get("frame_psnr")), "eval": _fmt(row.get("eval_psnr"))}
+        self.bar.set_postfix({k: v for k, v in post.items() if v not in (None, "")}, refresh=False)
+        self.bar.update(1)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _fmt(v) -> str:
+    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.2f}"
+
