@@ -24,27 +24,61 @@ def _gauss_taps(sigma: float, radius: int, dtype: torch.dtype) -> torch.Tensor:
     return (g / g.sum()).to(dtype)
 
 
-def ssim_map(a: torch.Tensor, b: torch.Tensor, sigma: float = 1.5, radius: int = 5) -> torch.Tensor:
-    """Per-pixel SSIM of images [..., H, W, C] in [0, 1]; output [..., H-2r, W-2r, C]."""
-    lead = a.shape[:-3]
-    H, W, C = a.shape[-3:]
-    x = torch.stack([a, b, a * a, b * b, a * b]).reshape(-1, H, W, C).permute(0, 3, 1, 2)
-    x = x.reshape(-1, 1, H, W)
-    g = _gauss_taps(sigma, radius, a.dtype).to(a.device)
-    x = F.conv2d(x, g.view(1, 1, 1, -1))
-    x = F.conv2d(x, g.view(1, 1, -1, 1))
-    x = x.reshape(5, -1, C, H - 2 * radius, W - 2 * radius).permute(0, 1, 3, 4, 2)
-    mu_a, mu_b, aa, bb, ab = x
+def _blur(x: torch.Tensor, sigma: float, radius: int) -> torch.Tensor:
+    """Gaussian filter of [K, H, W] planes, valid region only: [K, H-2r, W-2r].
+
+    One grouped (depthwise) separable convolution over all planes: on the CPU this is ~10x faster
+    than a single-channel convolution over a batch of planes."""
+    k = x.shape[0]
+    g = _gauss_taps(sigma, radius, x.dtype).to(x.device)
+    x = F.conv2d(x[None], g.view(1, 1, 1, -1).expand(k, 1, 1, -1), groups=k)
+    return F.conv2d(x, g.view(1, 1, -1, 1).expand(k, 1, -1, 1), groups=k)[0]
+
+
+def _planes(img: torch.Tensor) -> torch.Tensor:
+    """[..., H, W, C] -> [(... * C), H, W]."""
+    H, W, C = img.shape[-3:]
+    return img.reshape(-1, H, W, C).permute(0, 3, 1, 2).reshape(-1, H, W)
+
+
+def _ssim_from_moments(mu_a, aa, ab, mu_b, var_b_c2):
     var_a = aa - mu_a * mu_a
-    var_b = bb - mu_b * mu_b
     cov = ab - mu_a * mu_b
-    s = ((2 * mu_a * mu_b + _C1) * (2 * cov + _C2)) / ((mu_a * mu_a + mu_b * mu_b + _C1) * (var_a + var_b + _C2))
-    return s.reshape(*lead, H - 2 * radius, W - 2 * radius, C)
+    num = (2 * mu_a * mu_b + _C1) * (2 * cov + _C2)
+    return num / ((mu_a * mu_a + mu_b * mu_b + _C1) * (var_a + var_b_c2))
 
 
-def ssim(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+class SSIMTarget:
+    """SSIM against a fixed image (a training target): its moments are filtered once, not per call."""
+
+    def __init__(self, b: torch.Tensor, sigma: float = 1.5, radius: int = 5) -> None:
+        self.sigma, self.radius = sigma, radius
+        self.b = _planes(b)
+        mu_b, bb = _blur(torch.cat([self.b, self.b * self.b]), sigma, radius).chunk(2)
+        self.mu_b = mu_b
+        self.var_b_c2 = bb - mu_b * mu_b + _C2
+
+    def __call__(self, a: torch.Tensor) -> torch.Tensor:
+        """Mean SSIM of image `a` (same shape as the target) against the target."""
+        pa = _planes(a)
+        mu_a, aa, ab = _blur(torch.cat([pa, pa * pa, pa * self.b]), self.sigma, self.radius).chunk(3)
+        return _ssim_from_moments(mu_a, aa, ab, self.mu_b, self.var_b_c2).mean()
+
+
+def ssim_map(a: torch.Tensor, b: torch.Tensor, sigma: float = 1.5, radius: int = 5) -> torch.Tensor:
+    """Per-pixel SSIM of [..., H, W, C] images where the window fits: [..., H-2r, W-2r, C]."""
+    lead = a.shape[:-3]
+    C = a.shape[-1]
+    pa, pb = _planes(a), _planes(b)
+    m = _blur(torch.cat([pa, pb, pa * pa, pb * pb, pa * pb]), sigma, radius)
+    mu_a, mu_b, aa, bb, ab = m.chunk(5)
+    s = _ssim_from_moments(mu_a, aa, ab, mu_b, bb - mu_b * mu_b + _C2)
+    return s.reshape(*lead, C, *s.shape[-2:]).movedim(-3, -1)
+
+
+def ssim(a: torch.Tensor, b: torch.Tensor, sigma: float = 1.5, radius: int = 5) -> torch.Tensor:
     """Mean SSIM over pixels and channels of [..., H, W, C] images (one value per leading index)."""
-    return ssim_map(a, b).flatten(-3).mean(-1)
+    return ssim_map(a, b, sigma, radius).flatten(-3).mean(-1)
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
