@@ -1,12 +1,13 @@
 """Bake a scene's per-vertex (or per-face) colors into a texture atlas MuJoCo can draw.
 
-MuJoCo meshes have no vertex colors. Each quad (or lone triangle) gets its own k x k texel patch
-whose texels are the barycentric interpolation of its vertex colors, with the face's corners at
-texel centers: bilinear sampling inside a face then reads only that face's texels, so unrelated
-colors never bleed in at magnification. Patches are ordered along a 3D Morton curve of their
-centroids and placed along a 2D Morton curve in the atlas, so the 2x2-patch blocks averaged by
-coarse mip levels hold spatial neighbours; patches are k-aligned so the first log2(k) mip levels
-stay within one face. A UV-textured scene keeps its own texture.
+MuJoCo meshes have no vertex colors. Each quad (or lone triangle) gets its own 4 x 4 texel patch,
+4-aligned, holding the face's barycentric color field (each triangle's affine field extended
+over its side of the patch). The face spans the inner 2 x 2 texels (corners one texel in from the
+patch border), so bilinear sampling at mip levels 0 and 1 reads only that face's patch: unrelated
+colors never bleed in. The renderer stops the mip chain at `MAX_MIP_LEVEL`, where level 1 gives
+exactly the bilinear blend of the face's corner colors. Patches are ordered along a 3D Morton
+curve of their centroids and placed along a 2D Morton curve, so atlas neighbours are mostly scene
+neighbours. A UV-textured scene keeps its own texture and full mip chain.
 """
 
 from __future__ import annotations
@@ -18,7 +19,9 @@ import numpy as np
 
 from flightrecon.scene.types import Scene
 
-PATCH = 4  # texels per patch side: the first two mip levels stay within a face
+PATCH = 4  # texels per patch side
+INSET = 1.0  # texels between the patch border and the face's corners
+MAX_MIP_LEVEL = 1  # mip levels 0..1 sample only inside a patch (level-1 texel centers = face corners)
 
 
 @dataclass
@@ -28,6 +31,7 @@ class TextureAtlas:
     image: np.ndarray  # (H, W, 3) uint8
     texcoord: np.ndarray  # (T, 2) float32
     face_texcoord: np.ndarray  # (F, 3) int32 indices into texcoord, one per face corner
+    max_mip_level: int = 1000  # the renderer must not use coarser mip levels than this
 
 
 def scene_hash(scene: Scene) -> str:
@@ -76,7 +80,7 @@ def bake_atlas(scene: Scene) -> TextureAtlas:
         centroids = scene.vertices[faces.reshape(-1, 6)].mean(axis=1)
         corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], np.float32)
         corner_idx = np.array([[0, 1, 2], [0, 2, 3]])
-    else:  # one patch per triangle, its affine color field extended over the whole square
+    else:  # one patch per triangle, its affine color field extended over the whole patch
         c0, c1, c2 = corner_colors[:, 0], corner_colors[:, 1], corner_colors[:, 2]
         texels = c0[:, None, None] * (1 - s)[None, ..., None] + c1[:, None, None] * (s - t)[None, ..., None] \
             + c2[:, None, None] * t[None, ..., None]
@@ -95,16 +99,18 @@ def bake_atlas(scene: Scene) -> TextureAtlas:
     py = np.empty(n, np.int64)
     px[order], py[order] = slot_x, slot_y
     k = len(corners)
-    u = (px[:, None] * PATCH + 0.5 + corners[None, :, 0] * (PATCH - 1)) / (gx * PATCH)
-    v = (py[:, None] * PATCH + 0.5 + corners[None, :, 1] * (PATCH - 1)) / (gy * PATCH)
+    span = PATCH - 2 * INSET
+    u = (px[:, None] * PATCH + INSET + corners[None, :, 0] * span) / (gx * PATCH)
+    v = (py[:, None] * PATCH + INSET + corners[None, :, 1] * span) / (gy * PATCH)
     texcoord = np.stack([u, v], axis=-1).reshape(-1, 2).astype(np.float32)
     face_tc = (np.arange(n)[:, None, None] * k + corner_idx[None]).reshape(-1, 3).astype(np.int32)
-    return TextureAtlas(np.ascontiguousarray(image), texcoord, face_tc)
+    return TextureAtlas(np.ascontiguousarray(image), texcoord, face_tc, MAX_MIP_LEVEL)
 
 
 def _patch_coords() -> tuple[np.ndarray, np.ndarray]:
-    """(s, t) in [0, 1] of each texel center of a patch, indexed [row (t), column (s)]."""
-    a = np.linspace(0.0, 1.0, PATCH, dtype=np.float32)
+    """Face coordinates (s, t) of each texel center of a patch, indexed [row (t), column (s)];
+    the face covers [0, 1]^2, outer texels lie beyond it."""
+    a = ((np.arange(PATCH) + 0.5 - INSET) / (PATCH - 2 * INSET)).astype(np.float32)
     t, s = np.meshgrid(a, a, indexing="ij")
     return s, t
 

@@ -10,7 +10,17 @@ import mujoco
 import numpy as np
 
 from flightrecon.geometry import intrinsics, mujoco_camera_to_opencv, opencv_to_mujoco_rotation, vfov_deg
-from flightrecon.sim.world import RENDER_CAMERA, World
+from flightrecon.sim.world import ATLAS_TEXTURE, RENDER_CAMERA, World
+
+def _limit_atlas_mipmaps(world: World, ctx: mujoco.MjrContext) -> None:
+    """Stop the scene atlas's mip chain where levels would average unrelated faces (scene.bake)."""
+    from OpenGL import GL
+
+    tex_id = world.model.texture(ATLAS_TEXTURE).id
+    GL.glBindTexture(GL.GL_TEXTURE_2D, int(ctx.texture[tex_id]))
+    GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_MAX_LEVEL, int(world.baked.atlas.max_mip_level))
+    GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+
 
 _OFF_FLAGS = ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX", "mjRND_FOG", "mjRND_HAZE")
 
@@ -43,6 +53,7 @@ class RGBDCamera:
         self._gl.make_current()
         self._ctx = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
+        _limit_atlas_mipmaps(world, self._ctx)
         self._scene = mujoco.MjvScene(m, maxgeom=max(1000, 2 * m.ngeom))
         for flag in _OFF_FLAGS:
             self._scene.flags[getattr(mujoco.mjtRndFlag, flag)] = 0

@@ -22,12 +22,13 @@ from flightrecon.scene.collision import collision_boxes
 from flightrecon.scene.source import cache_root
 from flightrecon.scene.types import Scene
 
-BAKE_VERSION = 1  # bump when baking changes, so cached assets are rebuilt
+BAKE_VERSION = 2  # bump when baking changes, so cached assets are rebuilt
 SCENE_MESH = "scene_mesh"
 SCENE_GEOM = "scene_visual"
 COLLISION_GROUP = 4  # hidden by MuJoCo's default visual options, like the drone's group 3
 VISUAL_GROUP = 0
 RENDER_CAMERA = "render_cam"
+ATLAS_TEXTURE = "scene_atlas"
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,7 @@ def bake_scene(scene: Scene, cache_dir: str = "", collision_voxel: float = 0.05)
     if path.is_file():
         try:
             with np.load(path) as z:
-                atlas = TextureAtlas(z["image"], z["texcoord"], z["face_texcoord"])
+                atlas = TextureAtlas(z["image"], z["texcoord"], z["face_texcoord"], int(z["max_mip_level"]))
                 return BakedScene(atlas, z["boxes"], key, from_cache=True)
         except (OSError, ValueError, KeyError):
             pass  # a damaged cache entry is rebuilt below
@@ -71,7 +72,8 @@ def bake_scene(scene: Scene, cache_dir: str = "", collision_voxel: float = 0.05)
     try:
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, image=baked.atlas.image, texcoord=baked.atlas.texcoord,
-                     face_texcoord=baked.atlas.face_texcoord, boxes=baked.boxes)
+                     face_texcoord=baked.atlas.face_texcoord, max_mip_level=baked.atlas.max_mip_level,
+                     boxes=baked.boxes)
     except OSError:
         pass  # a read-only cache only costs time
     return baked
@@ -81,12 +83,12 @@ def add_scene(spec: mujoco.MjSpec, scene: Scene, baked: BakedScene, ambient: flo
     """Add the scene's textured visual mesh (no collisions) and its collision boxes (not drawn)."""
     atlas = baked.atlas
     h, w = atlas.image.shape[:2]
-    tex = spec.add_texture(name="scene_atlas", type=mujoco.mjtTexture.mjTEXTURE_2D, width=w, height=h,
+    tex = spec.add_texture(name=ATLAS_TEXTURE, type=mujoco.mjtTexture.mjTEXTURE_2D, width=w, height=h,
                            nchannel=3)
     tex.data = atlas.image.tobytes()
     mat = spec.add_material(name="scene_material", emission=1.0 - ambient, specular=0.0, shininess=0.0,
                             reflectance=0.0, rgba=[1, 1, 1, 1])
-    mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = "scene_atlas"
+    mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = ATLAS_TEXTURE
     mesh = spec.add_mesh(name=SCENE_MESH)
     mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
     mesh.maxhullvert = 4  # never collides: skip computing a useful hull
