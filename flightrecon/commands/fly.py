@@ -1,8 +1,9 @@
-"""`flightrecon fly SCENARIO --survey`: fly the drone in the scenario's scene and write what it saw.
+"""`flightrecon fly SCENARIO`: an active reconstruction flight (default), or `--survey`.
 
-The survey mode flies the scripted loop of flightrecon.survey and writes an RGB-D dataset. The
-active loop (view selection with 2D GauSS-MI) will be the default mode; until it exists a plain
-`fly` says so.
+The default mode runs the closed loop of flightrecon.mission with the selector of
+`selector.method` (2D GauSS-MI by default) and writes the run folder; `--resume RUN_DIR` continues
+a killed run from its last checkpoint. The survey mode flies the scripted loop of
+flightrecon.survey and writes an RGB-D dataset.
 """
 
 from __future__ import annotations
@@ -16,8 +17,10 @@ from flightrecon.errors import FlightReconError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("fly", help="fly a scenario (--survey: scripted loop that writes an RGB-D dataset)")
-    p.add_argument("scenario", help="scenario TOML path or name in scenarios/")
+    p = sub.add_parser("fly", help="active reconstruction flight (--survey: scripted loop that writes a dataset)")
+    p.add_argument("scenario", nargs="?", default=None, help="scenario TOML path or name in scenarios/")
+    p.add_argument("--resume", metavar="RUN_DIR", default=None,
+                   help="continue a killed active run from its checkpoint (its saved config is used)")
     p.add_argument("--survey", action="store_true", help="fly the scripted survey loop and write a dataset")
     p.add_argument("--out", default=None, help="output folder (default: <output.run_root>/<scenario>/<mode>/seed<k>)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -31,11 +34,28 @@ def default_out_dir(cfg: ScenarioConfig, mode: str) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.resume:
+        return _run_active(None, Path(args.resume), not args.quiet)
+    if args.scenario is None:
+        raise FlightReconError("fly needs a SCENARIO (or --resume RUN_DIR)")
     cfg = load_config(args.scenario, args.overrides)
     progress = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     if args.survey:
         return _run_survey(cfg, Path(args.out) if args.out else default_out_dir(cfg, "survey"), progress)
-    raise FlightReconError("the active flight loop is not available yet; use `flightrecon fly SCENARIO --survey`")
+    out = Path(args.out) if args.out else default_out_dir(cfg, cfg.selector.method)
+    return _run_active(cfg, out, not args.quiet)
+
+
+def _run_active(cfg: ScenarioConfig | None, out: Path, progress: bool) -> int:
+    from flightrecon.mission import Mission
+
+    mission = Mission.resume(out, progress=progress) if cfg is None else Mission(cfg, out, progress=progress)
+    m = mission.run()
+    e = m["eval"]
+    print(f"{m['frames']} frames, {m['splats']} splats ({m['map_mb']:.1f} MB); evaluation views: PSNR "
+          f"{e['psnr']:.2f} dB, SSIM {e['ssim']:.3f}, depth L1 {e['depth_l1_cm']:.2f} cm; flew "
+          f"{m['flight_distance_m']:.1f} m, {m['recoveries']} recoveries, {m['contacts']} contacts -> {out}")
+    return 0
 
 
 def _run_survey(cfg: ScenarioConfig, out: Path, progress) -> int:
