@@ -11,10 +11,12 @@ The distortion image is the rasterizer's (normalized-depth squared form, see ren
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 import torch.nn.functional as F
 
-from flightrecon.mapping.image_metrics import ssim
+from flightrecon.mapping.image_metrics import SSIMTarget
 
 ALPHA_MASK = 0.95
 
@@ -31,26 +33,43 @@ def normals_from_depth(depth: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
     return F.pad(n, (0, 0, 1, 1, 1, 1))
 
 
-def training_loss(out, rgb: torch.Tensor, depth: torch.Tensor, rays: torch.Tensor, *, ssim_weight: float,
-                  lambda_depth: float, lambda_normal: float, lambda_distortion: float) -> torch.Tensor:
-    """Scalar loss of one rendered view `out` (RenderOutput, one camera) against rgb [H,W,3], depth [H,W,1]."""
+@dataclass
+class FrameTarget:
+    """One observed frame prepared for repeated loss evaluation (masks and SSIM moments computed once)."""
+
+    rgb: torch.Tensor  # [H, W, 3]
+    depth: torch.Tensor  # [H, W, 1], 0 = invalid
+    valid: torch.Tensor  # [H, W, 1] observed depth is valid
+    valid_inner: torch.Tensor  # valid and not on the image border (where N_D is undefined)
+    rays: torch.Tensor  # [H, W, 3] pixel directions, z = 1
+    ssim: SSIMTarget | None
+
+
+def frame_target(rgb: torch.Tensor, depth: torch.Tensor, rays: torch.Tensor, with_ssim: bool = True) -> FrameTarget:
+    valid = depth > 0
+    inner = valid.clone()
+    inner[0, :] = inner[-1, :] = False
+    inner[:, 0] = inner[:, -1] = False
+    return FrameTarget(rgb, depth, valid, inner, rays, SSIMTarget(rgb) if with_ssim else None)
+
+
+def training_loss(out, target: FrameTarget, *, ssim_weight: float, lambda_depth: float, lambda_normal: float,
+                  lambda_distortion: float) -> torch.Tensor:
+    """Scalar loss of one rendered view `out` (RenderOutput, one camera) against `target`."""
     color = out.features[0]
-    l1 = (color - rgb).abs().mean()
-    loss = (1.0 - ssim_weight) * l1
+    loss = (1.0 - ssim_weight) * (color - target.rgb).abs().mean()
     if ssim_weight > 0:
-        loss = loss + ssim_weight * (1.0 - ssim(color, rgb))
-    mask = (depth > 0) & (out.alpha[0].detach() > ALPHA_MASK)
-    count = mask.sum().clamp_min(1)
+        loss = loss + ssim_weight * (1.0 - target.ssim(color))
+    opaque = out.alpha[0].detach() > ALPHA_MASK
     rendered_depth = out.depth[0]
     if lambda_depth > 0:
-        loss = loss + lambda_depth * torch.where(mask, (rendered_depth - depth).abs(), 0.0).sum() / count
+        mask = target.valid & opaque
+        err = torch.where(mask, (rendered_depth - target.depth).abs(), 0.0).sum()
+        loss = loss + lambda_depth * err / mask.sum().clamp_min(1)
     if lambda_normal > 0:
-        n_d = normals_from_depth(rendered_depth, rays)
-        inner = mask.clone()
-        inner[0, :] = inner[-1, :] = False
-        inner[:, 0] = inner[:, -1] = False
-        cos = (out.normal[0] * n_d).sum(-1, keepdim=True)
-        loss = loss + lambda_normal * torch.where(inner, 1.0 - cos, 0.0).sum() / inner.sum().clamp_min(1)
+        mask = target.valid_inner & opaque
+        cos = (out.normal[0] * normals_from_depth(rendered_depth, target.rays)).sum(-1, keepdim=True)
+        loss = loss + lambda_normal * torch.where(mask, 1.0 - cos, 0.0).sum() / mask.sum().clamp_min(1)
     if lambda_distortion > 0:
         loss = loss + lambda_distortion * out.distortion[0].mean()
     return loss

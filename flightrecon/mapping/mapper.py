@@ -19,7 +19,7 @@ from flightrecon.config import MapperConfig
 from flightrecon.geometry import pixel_rays
 from flightrecon.mapping import init as splat_init
 from flightrecon.mapping.frames import StoredFrame, compact_frame, expand_frame
-from flightrecon.mapping.losses import training_loss
+from flightrecon.mapping.losses import FrameTarget, frame_target, training_loss
 from flightrecon.mapping.optimizer import SparseAdam
 from flightrecon.mapping.store import GaussianMap
 from flightrecon.mapping.voxel_hash import reject_near
@@ -98,17 +98,14 @@ class OnlineMapper:
     def _optimize(self, frame: StoredFrame, iters: int, count_observed: bool = False) -> None:
         if iters <= 0 or len(self.map) == 0:
             return
-        rgb, depth = expand_frame(frame, self.device)
-        H, W = depth.shape[:2]
-        rays = self._rays_for(W, H, frame.K)
+        target = self._target(frame)
+        H, W = target.depth.shape[:2]
         viewmat = frame.viewmat.to(self.device)[None]
         Ks = frame.K.to(self.device)[None]
         leaves = self.adam.leaves()
-        c = self.cfg
         for it in range(iters):
             out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS)
-            loss = training_loss(out, rgb, depth, rays, ssim_weight=c.ssim_weight, lambda_depth=c.lambda_depth,
-                                 lambda_normal=c.lambda_normal, lambda_distortion=c.lambda_distortion)
+            loss = self._loss(out, target)
             loss.backward()
             visible = torch.nonzero(out.radii[0] > 0, as_tuple=True)[0]
             if count_observed and it == 0:
@@ -135,14 +132,21 @@ class OnlineMapper:
     def frame_loss(self, index: int) -> float:
         """Training loss of stored frame `index` under the current map (for tests and logs)."""
         f = self.frames[index]
-        rgb, depth = expand_frame(f, self.device)
-        H, W = depth.shape[:2]
+        target = self._target(f)
+        H, W = target.depth.shape[:2]
         p = {name: self.map[name] for name in ("means", "quats", "log_scales", "opacity_logits", "colors")}
         out = self._render(p, f.viewmat.to(self.device)[None], f.K.to(self.device)[None], W, H, TRAIN_OUTPUTS)
+        return float(self._loss(out, target))
+
+    def _loss(self, out, target: FrameTarget) -> torch.Tensor:
         c = self.cfg
-        return float(training_loss(out, rgb, depth, self._rays_for(W, H, f.K), ssim_weight=c.ssim_weight,
-                                   lambda_depth=c.lambda_depth, lambda_normal=c.lambda_normal,
-                                   lambda_distortion=c.lambda_distortion))
+        return training_loss(out, target, ssim_weight=c.ssim_weight, lambda_depth=c.lambda_depth,
+                             lambda_normal=c.lambda_normal, lambda_distortion=c.lambda_distortion)
+
+    def _target(self, frame: StoredFrame) -> FrameTarget:
+        rgb, depth = expand_frame(frame, self.device)
+        rays = self._rays_for(depth.shape[1], depth.shape[0], frame.K)
+        return frame_target(rgb, depth, rays, with_ssim=self.cfg.ssim_weight > 0)
 
     def _rays_for(self, W: int, H: int, K: torch.Tensor) -> torch.Tensor:
         key = (W, H, *K.flatten().tolist())

@@ -1,0 +1,64 @@
+"""Online 2DGS mapping: seconds per frame (K_new + K_replay), model size, and held-out quality.
+
+Trains on a recorded dataset (a survey flight: `flightrecon fly office0 --survey`) exactly as
+`flightrecon map` does. Per dataset it reports the median and mean wall time of one `add_frame`,
+the map.ply size scaled to 100 training frames, and (with --quality) PSNR / SSIM / depth L1 on the
+held-out views (every `--holdout`-th frame) and PSNR on the training views.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from flightrecon.config import load_config
+from flightrecon.dataset import load_dataset
+from flightrecon.mapping.offline import evaluate_view, mean_metrics, train_on_dataset
+from flightrecon.mapping.ply import save_map
+
+from flightrecon.bench.common import report
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--dataset", action="append", default=[],
+                   help="dataset folder (repeatable, e.g. a 320x240 and a 640x480 survey)")
+    p.add_argument("--frames", type=int, default=None, help="use only the first N frames of each dataset")
+    p.add_argument("--holdout", type=int, default=5)
+    p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    p.add_argument("--quality", action="store_true", help="also render and score every view after training")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="config override, e.g. mapper.backend=reference")
+
+
+def run(args: argparse.Namespace) -> dict:
+    if not args.dataset:
+        raise SystemExit("bench map: give --dataset DIR (record one with `flightrecon fly office0 --survey`)")
+    torch.set_num_threads(args.threads)
+    cfg = load_config(None, args.overrides)
+    rows = []
+    for path in args.dataset:
+        ds = load_dataset(path)
+        res = train_on_dataset(ds, cfg, args.holdout, args.frames)
+        with tempfile.TemporaryDirectory() as tmp:
+            size = save_map(res.mapper.map, Path(tmp) / "map.ply").stat().st_size
+        row = {"dataset": Path(path).name, "size": f"{ds.width}x{ds.height}", "frames": len(res.train),
+               "k_new": cfg.mapper.k_new, "k_replay": cfg.mapper.k_replay, "threads": args.threads,
+               "backend": cfg.mapper.backend, "s_per_frame_median": statistics.median(res.seconds),
+               "s_per_frame_mean": float(np.mean(res.seconds)), "splats": len(res.mapper.map),
+               "mb_per_100_frames": size / 1e6 * 100.0 / max(1, len(res.train))}
+        if args.quality:
+            for split, idx in (("test", res.test), ("train", res.train)):
+                views = []
+                for i in idx:
+                    f = ds[i]
+                    views.append(evaluate_view(res.mapper, f.rgb, f.depth, f.K, f.T_wc)[0])
+                for k, v in mean_metrics(views).items():
+                    row[f"{split}_{k}"] = v * 100.0 if k == "depth_l1" else v
+            row = {k.replace("depth_l1", "depth_l1_cm"): v for k, v in row.items()}
+        rows.append(row)
+    return report("map", rows, args.out, extra={"note": "wall times on a shared machine; see machine.cores"})
