@@ -1,0 +1,57 @@
+"""What a user wants to know about a scene file: counts, bounds, appearance, and its free volume.
+
+Free volume comes from the surface voxels (`scene.collision`): empty voxels connected to each
+other form regions; a region touching the grid border is outside (or leaks to it through a hole).
+The largest enclosed region is the room's free space.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from flightrecon.scene.collision import surface_voxels
+from flightrecon.scene.types import Scene
+
+
+def free_space(scene: Scene, pitch: float = 0.1) -> dict:
+    """Volume (m^3) of the largest empty region enclosed by the surface, and whether one exists."""
+    occ, _ = surface_voxels(scene, pitch)
+    labels, n = ndimage.label(~occ)
+    if n == 0:
+        return {"free_volume_m3": 0.0, "enclosed": False}
+    border = np.unique(np.concatenate([labels[0].ravel(), labels[-1].ravel(), labels[:, 0].ravel(),
+                                       labels[:, -1].ravel(), labels[:, :, 0].ravel(), labels[:, :, -1].ravel()]))
+    sizes = np.bincount(labels.ravel(), minlength=n + 1)
+    sizes[0] = 0
+    sizes[border] = 0
+    if sizes.max() == 0:
+        return {"free_volume_m3": 0.0, "enclosed": False}
+    return {"free_volume_m3": float(sizes.max() * pitch ** 3), "enclosed": True}
+
+
+def summary(scene: Scene, with_free_space: bool = True) -> dict:
+    """Counts, bounds (m), size, up axis of the file, appearance and (optionally) free volume."""
+    lo, hi = scene.bounds
+    out = {
+        "name": scene.name,
+        "source": str(scene.source) if scene.source else None,
+        "vertices": int(len(scene.vertices)),
+        "triangles": int(len(scene.faces)),
+        "quads": int(len(scene.faces) // 2) if scene.meta.get("quad_faces") else 0,
+        "bounds_min": [round(float(x), 4) for x in lo],
+        "bounds_max": [round(float(x), 4) for x in hi],
+        "size": [round(float(x), 4) for x in hi - lo],
+        "file_up_axis": scene.source_up_axis,
+        "appearance": scene.appearance,
+        "normals": scene.vertex_normals is not None,
+        "surface_area_m2": round(float(scene.trimesh.area), 3),
+    }
+    if scene.appearance == "texture":
+        out["texture_size"] = [int(scene.texture.shape[1]), int(scene.texture.shape[0])]
+    for key in ("kind", "floor_z", "ceiling_z", "free_box", "spawn"):
+        if key in scene.meta:
+            out[key] = scene.meta[key]
+    if with_free_space:
+        out.update(free_space(scene))
+    return out
