@@ -145,3 +145,32 @@ def test_camera_pose_follows_the_body_and_sees_past_the_drone(pitch):
     if expected_center is not None:
         assert depth[22:26, 30:34].mean() == pytest.approx(expected_center, abs=0.01)
     assert depth.min() > 0.5  # nothing of the drone itself (all within 0.25 m) is rendered
+
+
+@pytest.mark.slow
+def test_flying_into_a_real_scene_records_a_contact_on_its_surface():
+    """The world's collision geometry (scene engineer's boxes) stops the drone where the mesh is."""
+    import trimesh
+
+    from flightrecon.scene.source import scene_from_config
+    from flightrecon.sim.world import build_world
+    from flightrecon.survey import takeoff_point
+
+    cfg = load_config("demo", ["camera.width=32", "camera.height=24"])
+    scene = scene_from_config(cfg.scene)
+    world = build_world(scene, cfg)
+    f = Flight.from_world(world, cfg)
+    start = takeoff_point(scene, cfg)
+    f.start(start, 0.0)
+    goal = start + np.array([scene.bounds[1, 0] - start[0] + 0.5, 0.0, 0.0])  # beyond the +x wall
+    move = MinJerkMove.within_limits(start, goal, 0.0, 0.0, 0.3, 1.0, 4.0, 1.0, 1.0)
+    try:
+        f.fly(move, extra_time=1.0)
+    except FlightDiverged:
+        pass
+    assert f.log.events, "no contact with the scene recorded"
+    e = f.log.events[0]
+    assert e.other_geom.startswith("scene_collision")
+    _, dist, _ = trimesh.proximity.ProximityQuery(scene.trimesh).on_surface(np.array([e.position]))
+    assert dist[0] < cfg.scene.collision_voxel + 0.03
+    assert f.log["x"].max() < goal[0] - 0.3  # it did not pass through

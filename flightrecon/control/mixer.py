@@ -26,32 +26,36 @@ class Mixer:
         self.A = allocation_matrix(rotor_positions, spin_sign, yaw_torque_coeff)
         self.A_inv = np.linalg.inv(self.A)
         self.max_thrust = float(max_thrust)
+        self._A_inv_rows = self.A_inv.tolist()  # plain floats: this runs at the control rate
 
     def wrench(self, thrusts: np.ndarray) -> np.ndarray:
         """[thrust, Mx, My, Mz] produced by rotor thrusts."""
         return self.A @ thrusts
 
-    def mix(self, thrust: float, torque: np.ndarray) -> np.ndarray:
+    def mix(self, thrust: float, torque) -> np.ndarray:
         """Rotor thrusts for the collective `thrust` (N) and body `torque` (N m), saturated by priority."""
         fmax = self.max_thrust
-        u = self.A_inv @ np.array([thrust, torque[0], torque[1], torque[2]])
-        if u.min() >= 0.0 and u.max() <= fmax:
-            return u
+        A = self._A_inv_rows
+        tx, ty, tz = float(torque[0]), float(torque[1]), float(torque[2])
+        u = [r[0] * thrust + r[1] * tx + r[2] * ty + r[3] * tz for r in A]
+        if min(u) >= 0.0 and max(u) <= fmax:
+            return np.array(u)
         # Roll/pitch differential thrusts (zero sum) and the collective share per rotor.
-        d = self.A_inv[:, 1:3] @ torque[:2]
-        span = d.max() - d.min()
+        d = [r[1] * tx + r[2] * ty for r in A]
+        span = max(d) - min(d)
         if span > fmax:
-            d *= fmax / span
-            base = -d.min()
+            d = [x * fmax / span for x in d]
+            base = -min(d)
         else:
-            base = min(max(thrust / 4.0, -d.min()), fmax - d.max())
-        u = base + d
+            base = min(max(thrust / 4.0, -min(d)), fmax - max(d))
+        u = [base + x for x in d]
         # Yaw: the largest fraction of the requested yaw differential that still fits.
-        y = self.A_inv[:, 3] * torque[2]
+        y = [r[3] * tz for r in A]
         alpha = 1.0
         for ui, yi in zip(u, y):
             if yi > 1e-12:
                 alpha = min(alpha, (fmax - ui) / yi)
             elif yi < -1e-12:
                 alpha = min(alpha, -ui / yi)
-        return np.clip(u + max(alpha, 0.0) * y, 0.0, fmax)
+        alpha = max(alpha, 0.0)
+        return np.clip(np.array([ui + alpha * yi for ui, yi in zip(u, y)]), 0.0, fmax)

@@ -38,12 +38,12 @@ class FlightLog:
     """Time series of one flight (one row per control step, `COLUMNS`) and its contact events."""
 
     def __init__(self) -> None:
-        self._rows: list[np.ndarray] = []
+        self._rows: list[list[float]] = []
         self._cache: np.ndarray | None = None
         self.events: list[ContactEvent] = []
         self.notes: list[str] = []
 
-    def append(self, row: np.ndarray) -> None:
+    def append(self, row: list[float]) -> None:
         self._rows.append(row)
         self._cache = None
 
@@ -130,14 +130,14 @@ class Flight:
     # ------------------------------------------------------------------ cycle
     def step(self, ref: FlatState) -> None:
         """One control period: control from the current state, physics substeps, log and checks."""
-        s = self.drone.state(self.data)
-        out = self.controller.compute(s.position, s.velocity, s.R, s.omega, ref)
-        cmd = self.mixer.mix(out.thrust, out.torque)
-        clearance = self.clearance(s.position) if self.clearance is not None else math.nan
-        row = np.concatenate([[self.data.time], s.position, s.quat, s.velocity, s.omega, ref.position,
-                              ref.velocity, [ref.yaw], cmd, self.drone.motor_thrusts(self.data), [clearance]])
+        p, q, v, w, R = self.drone.read(self.data)
+        thrust, torque, _ = self.controller.compute_floats(p, v, R, w, ref)
+        cmd = self.mixer.mix(thrust, torque)
+        clearance = self.clearance(np.array(p)) if self.clearance is not None else math.nan
+        row = [self.data.time, *p, *q, *v, *w, *ref.position.tolist(), *ref.velocity.tolist(), ref.yaw,
+               *cmd.tolist(), *self.drone.motor_thrusts(self.data).tolist(), clearance]
         self.log.append(row)
-        reason = divergence_reason(s, self.cfg.sim.divergence_tilt_deg)
+        reason = divergence_reason(row[1:14], R[8], self.cfg.sim.divergence_tilt_deg)
         if reason is not None:
             msg = f"flight diverged at t={self.data.time:.3f}s: {reason}; the log keeps {len(self.log)} steps"
             self.log.notes.append(msg)

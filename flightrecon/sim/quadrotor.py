@@ -130,13 +130,23 @@ class DroneHandle:
         self.spin_sign = np.sign(model.actuator_gear[self.motor_ids, 5])
         self.camera_offset = model.cam_pos[self.camera_id].copy()
 
+    def read(self, data: mujoco.MjData) -> tuple[list, list, list, list, list]:
+        """Position, unit quaternion (wxyz), velocity, body rates and R (row-major, 9) as plain floats
+        (the flight cycle's fast path; `state` wraps it in arrays)."""
+        a, b = self.qpos_adr, self.qvel_adr
+        x, y, z, qw, qx, qy, qz = data.qpos[a:a + 7].tolist()
+        n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        if n > 0:
+            qw, qx, qy, qz = qw / n, qx / n, qy / n, qz / n
+        qv = data.qvel[b:b + 6].tolist()
+        R = [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy),
+             2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx),
+             2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)]
+        return [x, y, z], [qw, qx, qy, qz], qv[:3], qv[3:], R
+
     def state(self, data: mujoco.MjData) -> DroneState:
-        qp = data.qpos[self.qpos_adr:self.qpos_adr + 7]
-        qv = data.qvel[self.qvel_adr:self.qvel_adr + 6]
-        q = qp[3:7] / np.linalg.norm(qp[3:7])
-        R = np.empty(9)
-        mujoco.mju_quat2Mat(R, q)
-        return DroneState(qp[:3].copy(), q, qv[:3].copy(), qv[3:6].copy(), R.reshape(3, 3))
+        p, q, v, w, R = self.read(data)
+        return DroneState(np.array(p), np.array(q), np.array(v), np.array(w), np.array(R).reshape(3, 3))
 
     def set_pose(self, model: mujoco.MjModel, data: mujoco.MjData, position: np.ndarray, yaw: float = 0.0) -> None:
         """Place the drone at rest, level, with motors spun up to hover thrust; recomputes kinematics."""

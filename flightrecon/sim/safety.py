@@ -17,7 +17,6 @@ import mujoco
 import numpy as np
 
 from flightrecon.errors import FlightReconError
-from flightrecon.sim.quadrotor import DroneState
 
 
 class FlightDiverged(FlightReconError):
@@ -94,12 +93,11 @@ class ContactMonitor:
         return events
 
 
-def divergence_reason(state: DroneState, max_tilt_deg: float) -> str | None:
-    """Why the state is beyond recovery, or None when it is fine."""
-    total = float(state.position.sum() + state.velocity.sum() + state.quat.sum() + state.omega.sum())
-    if not math.isfinite(total):  # any NaN or inf makes the sum non-finite
+def divergence_reason(values: list[float], cos_tilt: float, max_tilt_deg: float) -> str | None:
+    """Why the state (its raw numbers, and the cosine of the body's tilt) is beyond recovery, or None."""
+    if not math.isfinite(sum(values)):  # any NaN or inf makes the sum non-finite
         return "the simulated state holds NaN or inf"
-    tilt = math.degrees(state.tilt)
+    tilt = math.degrees(math.acos(max(-1.0, min(1.0, cos_tilt))))
     if tilt > max_tilt_deg:
         return f"the drone tilted {tilt:.0f} deg, beyond the {max_tilt_deg:.0f} deg limit (sim.divergence_tilt_deg)"
     return None
