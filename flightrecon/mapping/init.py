@@ -16,6 +16,8 @@ from flightrecon.geometry import pixel_rays
 
 # A neighbour whose depth differs by more than this share is across an occlusion edge.
 _MAX_REL_DEPTH_JUMP = 0.05
+# Largest second difference of inverse depth, relative to it, still taken as one smooth surface.
+_MAX_REL_BEND = 0.01
 
 
 def valid_depth_mask(depth: np.ndarray, near: float, far: float) -> np.ndarray:
@@ -39,6 +41,13 @@ def depth_normals(depth: np.ndarray, K: np.ndarray, valid: np.ndarray) -> tuple[
     nb = np.stack([d[1:-1, 2:], d[1:-1, :-2], d[2:, 1:-1], d[:-2, 1:-1]])
     good = valid[1:-1, 1:-1] & np.all(nb > 0, axis=0)
     good &= np.all(np.abs(nb - center) <= _MAX_REL_DEPTH_JUMP * center, axis=0)
+    # Inverse depth is affine in pixel coordinates on a plane: a second difference far from zero
+    # means a crease or an occlusion edge inside the stencil, where the cross product mixes surfaces.
+    with np.errstate(divide="ignore"):
+        inv = np.where(nb > 0, 1.0 / np.where(nb > 0, nb, 1.0), 0.0)
+        inv_c = 1.0 / np.where(center > 0, center, 1.0)
+    bend = np.maximum(np.abs(inv[0] + inv[1] - 2 * inv_c), np.abs(inv[2] + inv[3] - 2 * inv_c))
+    good &= bend <= _MAX_REL_BEND * inv_c
     norm = np.linalg.norm(c, axis=-1)
     good &= norm > 0
     c = c / np.maximum(norm, 1e-30)[..., None]
