@@ -151,3 +151,20 @@ def test_too_long_and_no_path():
     planner2 = Planner(cfg2, WORKSPACE, trimesh.util.concatenate([mesh, pocket]))  # no free seed
     (r,) = planner2.check(start, np.array([[2.0, -1.5, 1.2]]), np.zeros(1))
     assert r.reason == "no_path"
+
+
+def test_a_start_closer_than_required_can_still_leave(setup):
+    mesh, cfg, planner = setup
+    required = cfg.drone.body_radius + cfg.planner.safety_margin
+    start_pos = np.array([-3.0 + 0.31, 0.0, 1.2])  # 0.31 m from the room wall, 0.35 required
+    start = FlatState(start_pos, np.zeros(3), np.zeros(3), 0.0, 0.0)
+    results = planner.check_library(start)
+    ok = [r for r in results if r.feasible]
+    assert ok and all(r.position[0] > start_pos[0] - 1e-9 for r in ok)  # none closer to the wall
+    d0 = planner.field.distance(start_pos[None])[0]
+    for r in ok:
+        pos = r.trajectory.evaluate(np.arange(0.0, r.duration, 1e-3))[0][:, :3]
+        d = planner.field.distance(pos)
+        far = np.linalg.norm(pos - start_pos, axis=1) >= required - d0 + planner.field.voxel_size
+        assert d[far].min(initial=np.inf) >= required - 1e-6
+        assert d.min() >= d0 - planner.field.voxel_size / 2 - 1e-6

@@ -25,7 +25,7 @@ from flightrecon.planning.distance_field import DistanceField
 from flightrecon.planning.library import ViewpointLibrary, in_bounds, load_library
 from flightrecon.planning.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 from flightrecon.planning.paths import plan_path, seed_ompl
-from flightrecon.planning.timing import JerkTrajectory, Limits, time_path, unwrap_yaws
+from flightrecon.planning.timing import JerkTrajectory, Limits, evaluate_batch, time_path, unwrap_yaws
 
 REASONS = ("feasible", "out_of_bounds", "in_obstacle", "unknown_space", "clearance", "no_path",
            "limits", "too_long")
@@ -56,6 +56,7 @@ class PlanningSettings:
 
     limits: Limits
     required_clearance: float
+    body_radius: float
     max_tilt: float
     max_duration: float
     ompl_time_limit: float
@@ -65,7 +66,7 @@ class PlanningSettings:
         p, d = cfg.planner, cfg.drone
         limits = Limits(p.max_vel, p.max_acc, p.max_jerk, math.radians(p.max_yaw_rate_deg),
                         math.radians(p.max_yaw_acc_deg), math.radians(p.max_yaw_jerk_deg))
-        return cls(limits, d.body_radius + p.safety_margin, math.radians(d.max_tilt_deg),
+        return cls(limits, d.body_radius + p.safety_margin, d.body_radius, math.radians(d.max_tilt_deg),
                    p.max_duration, p.ompl_time_limit)
 
 
@@ -81,27 +82,20 @@ class PlanningTimes:
 
 
 def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settings: PlanningSettings,
-                       ) -> tuple[list[str], np.ndarray, np.ndarray]:
+                       start: np.ndarray | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Dense check of many trajectories at once -> (reason per trajectory, min clearance, length).
 
     Samples are spaced so no axis moves more than a quarter voxel between them; the clearance
-    required at samples adds sqrt(3)/2 of the largest sample spacing (the field's Lipschitz bound)."""
+    required at samples adds sqrt(3)/2 of the largest sample spacing (the field's Lipschitz bound).
+    A drone that starts closer than required (after a tracking error) may leave: near `start` the
+    requirement drops to its current clearance less half a voxel (it may not get closer)."""
     lim = settings.limits
     if not trajs:
         return [], np.zeros(0), np.zeros(0)
     dt = (field.voxel_size / 4) / max(lim.vel, 1e-9)
-    pos_l, vel_l, acc_l, jerk_l, owner = [], [], [], [], []
-    for i, tr in enumerate(trajs):
-        n = max(int(math.ceil(tr.duration / dt)), 1)
-        t = np.linspace(0.0, tr.duration, n + 1)
-        p, v, a, j = tr.evaluate(t)
-        pos_l.append(p)
-        vel_l.append(v)
-        acc_l.append(a)
-        jerk_l.append(j)
-        owner.append(np.full(len(t), i))
-    pos, vel, acc, jerk = (np.concatenate(x) for x in (pos_l, vel_l, acc_l, jerk_l))
-    who = np.concatenate(owner)
+    times = [np.linspace(0.0, tr.duration, max(int(math.ceil(tr.duration / dt)), 1) + 1) for tr in trajs]
+    pos, vel, acc, jerk = evaluate_batch(trajs, times)
+    who = np.repeat(np.arange(len(trajs)), [len(t) for t in times])
     clear = field.distance(pos[:, :3])
     step = np.zeros(len(pos))
     same = who[1:] == who[:-1]
@@ -120,10 +114,18 @@ def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settin
     tilt = np.arctan2(np.linalg.norm(acc[:, :2], axis=1), thrust_z)
     over |= (thrust_z <= 0) | (tilt > settings.max_tilt)
     bad_limits = np.bincount(who, weights=over.astype(float), minlength=n) > 0
-    need = settings.required_clearance + math.sqrt(3) * max_step / 2
+    req = np.full(len(pos), settings.required_clearance)
+    if start is not None:
+        d0 = float(field.distance(np.asarray(start, float)[None])[0])
+        if d0 < settings.required_clearance:
+            radius = settings.required_clearance - d0 + field.voxel_size
+            near = np.linalg.norm(pos[:, :3] - start, axis=1) < radius
+            req[near] = d0 - field.voxel_size / 2
+    short = clear < req + math.sqrt(3) * max_step[who] / 2
+    bad_clear = np.bincount(who, weights=short.astype(float), minlength=n) > 0
     reasons = []
     for i, tr in enumerate(trajs):
-        if min_clear[i] < need[i]:
+        if bad_clear[i]:
             reasons.append("clearance")
         elif bad_limits[i]:
             reasons.append("limits")
@@ -172,7 +174,7 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
             continue
         trajs.append(tr)
         ok_idx.append(i)
-    reasons, min_clear, length = check_trajectories(trajs, field, settings)
+    reasons, min_clear, length = check_trajectories(trajs, field, settings, p0)
     for i, tr, why, mc, ln in zip(ok_idx, trajs, reasons, min_clear, length):
         if why == "clearance":
             retry.append(i)
@@ -199,7 +201,7 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
             if cand is None:
                 why = "limits"
                 continue
-            (why,), (mc,), (ln,) = check_trajectories([cand], field, settings)
+            (why,), (mc,), (ln,) = check_trajectories([cand], field, settings, p0)
             tr = cand
             if why == "feasible":
                 break

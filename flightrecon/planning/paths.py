@@ -48,8 +48,10 @@ def plan_path(field: DistanceField, start: np.ndarray, goal: np.ndarray, require
         rb.setLow(k, float(b[0, k]))
         rb.setHigh(k, float(b[1, k]))
     space.setBounds(rb)
-    ss = og.SimpleSetup(space)
     query = field.distance
+    if np.any(query(np.stack([start, goal]).astype(float)) < need):
+        return None  # no valid tree root: OMPL would only log an error
+    ss = og.SimpleSetup(space)
 
     def valid(state) -> bool:
         return bool(query(np.array([[state[0], state[1], state[2]]]))[0] >= need)

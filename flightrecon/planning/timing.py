@@ -53,19 +53,9 @@ class JerkTrajectory:
 
     def evaluate(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Position, velocity, acceleration and jerk, each (T, 4) [x, y, z, yaw], at many times."""
-        t = np.clip(np.asarray(times, float).reshape(-1), 0.0, self._duration)
-        out = np.empty((4, len(t), 4))
-        for ax in range(4):
-            k = np.searchsorted(self._starts[ax], t, side="right") - 1
-            k = np.clip(k, 0, len(self._starts[ax]) - 1)
-            dt = t - self._starts[ax][k]
-            p0, v0, a0, j = self._coeffs[ax][k].T
-            out[0, :, ax] = p0 + dt * (v0 + dt * (a0 / 2 + dt * j / 6))
-            out[1, :, ax] = v0 + dt * (a0 + dt * j / 2)
-            out[2, :, ax] = a0 + dt * j
-            out[3, :, ax] = j
-        end = np.asarray(times, float).reshape(-1) >= self._duration
-        out[1:, end, :] = 0.0  # at rest after the end
+        t = np.asarray(times, float).reshape(-1)
+        out = _eval_phases(self._starts, self._coeffs, np.clip(t, 0.0, self._duration))
+        out[1:, t >= self._duration, :] = 0.0  # at rest after the end
         return out[0], out[1], out[2], out[3]
 
     def sample(self, t: float) -> FlatState:
@@ -75,6 +65,31 @@ class JerkTrajectory:
     @property
     def end_position(self) -> np.ndarray:
         return self.evaluate(np.array([self._duration]))[0][0]
+
+
+def _eval_phases(starts: list[np.ndarray], coeffs: list[np.ndarray], t: np.ndarray) -> np.ndarray:
+    """(4 derivatives, T, 4 axes) of piecewise-cubic phases at sorted-or-not times `t`."""
+    out = np.empty((4, len(t), 4))
+    for ax in range(4):
+        k = np.clip(np.searchsorted(starts[ax], t, side="right") - 1, 0, len(starts[ax]) - 1)
+        dt = t - starts[ax][k]
+        p0, v0, a0, j = coeffs[ax][k].T
+        out[0, :, ax] = p0 + dt * (v0 + dt * (a0 / 2 + dt * j / 6))
+        out[1, :, ax] = v0 + dt * (a0 + dt * j / 2)
+        out[2, :, ax] = a0 + dt * j
+        out[3, :, ax] = j
+    return out
+
+
+def evaluate_batch(trajs: list[JerkTrajectory], times: list[np.ndarray]) -> np.ndarray:
+    """Evaluate many trajectories at their own times (each within [0, duration]) in one vectorized
+    pass: (4 derivatives, sum of T_i, 4 axes). Each trajectory's phases are shifted to its own
+    time window so one search per axis serves all of them."""
+    offsets = np.cumsum([0.0] + [tr.duration + 1.0 for tr in trajs[:-1]])
+    starts = [np.concatenate([tr._starts[ax] + o for tr, o in zip(trajs, offsets)]) for ax in range(4)]
+    coeffs = [np.concatenate([tr._coeffs[ax] for tr in trajs]) for ax in range(4)]
+    t = np.concatenate([np.clip(ti, 0.0, tr.duration) + o for tr, ti, o in zip(trajs, times, offsets)])
+    return _eval_phases(starts, coeffs, t)
 
 
 def _segment(otg: Ruckig, inp: InputParameter, out: RuckigTrajectory):
@@ -96,7 +111,7 @@ def time_path(waypoints: np.ndarray, yaws: np.ndarray, limits: Limits,
     vias = np.zeros((n, 4))
     if start_vel is not None:
         vias[0] = start_vel
-    if not stop_at_waypoints:
+    if not stop_at_waypoints and n > 2:
         vias[1:-1] = via_velocities(wp, yw, limits)
     acc0 = np.zeros(4) if start_acc is None else np.asarray(start_acc, float)
     otg = Ruckig(4)
