@@ -5,7 +5,9 @@ Layout of a dataset folder (nerfstudio's `transforms.json` convention, so common
     transforms.json          intrinsics + one entry per frame (below)
     images/frame_00000.png   color, 8-bit RGB
     depth/frame_00000.png    z-depth along the optical axis, 16-bit PNG in millimeters, 0 = invalid
-    trajectory.csv           the flown states (one row per control step; columns named in the header)
+    trajectory.csv           the flown states, one row per control step, columns named in the header
+                             (sim.flight.COLUMNS: t, position, quaternion wxyz, velocity, body rates,
+                             reference, motor commands and thrusts, clearance)
 
 `transforms.json` keys: `camera_model` ("OPENCV"), `fl_x`, `fl_y`, `cx`, `cy`, `w`, `h`,
 `k1 k2 p1 p2` (all 0: the simulated camera is an ideal pinhole), `depth_unit_scale_factor`

@@ -147,9 +147,8 @@ def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str
                     continue
                 if not flight.wait_until_arrived():
                     unsettled += 1
-                flight.sync()
-                rgb, depth, T_wc = camera.render_named("drone_cam")
-                writer.add(rgb, depth, flight.estimated_camera_pose(T_wc), time=flight.time, T_wc_true=T_wc)
+                rgb, depth, T_est, T_true = flight.capture(camera)
+                writer.add(rgb, depth, T_est, time=flight.time, T_wc_true=T_true)
                 progress(f"[{len(writer.frames)}/{n_frames}] waypoint {i + 1}/{len(route)} "
                          f"at {np.round(wp.position, 2).tolist()} yaw {math.degrees(yaw) % 360:.0f} deg, "
                          f"t = {flight.time:.1f} s")

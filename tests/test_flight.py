@@ -174,3 +174,51 @@ def test_flying_into_a_real_scene_records_a_contact_on_its_surface():
     _, dist, _ = trimesh.proximity.ProximityQuery(scene.trimesh).on_surface(np.array([e.position]))
     assert dist[0] < cfg.scene.collision_voxel + 0.03
     assert f.log["x"].max() < goal[0] - 0.3  # it did not pass through
+
+
+def test_clearance_monitor_reads_the_distance_field():
+    import trimesh
+
+    from flightrecon.planning.distance_field import DistanceField
+    from flightrecon.sim.safety import ClearanceMonitor
+
+    cfg = load_config(None, [])
+    wall = trimesh.creation.box(extents=[0.2, 6.0, 3.0])
+    wall.apply_translation([WALL_X + 0.1, 0.0, 1.5])
+    field = DistanceField.from_mesh(wall, 0.05, np.array([[-1.0, -3.5, 0.0], [3.0, 3.5, 3.0]]))
+    model, data = box_world(cfg)
+    f = Flight(model, data, cfg, ClearanceMonitor(field, cfg.drone.body_radius))
+    f.start(np.array([0.5, 0.0, 1.5]), 0.0)
+    log = f.fly(MinJerkMove([0.5, 0.0, 1.5], [1.2, 0.0, 1.5], 0.0, 0.0, 2.0))
+    truth = WALL_X - log["x"] - cfg.drone.body_radius
+    np.testing.assert_allclose(log["clearance"], truth, atol=0.05)  # within a voxel
+
+
+def test_arrival_waits_for_settling_and_times_out_when_unreachable():
+    f = flight("control.settle_time=0.3")
+    f.fly(MinJerkMove([0, 0, 1.0], [0.5, 0, 1.0], 0.0, 0.0, 1.0))
+    t_end = f.time
+    assert f.wait_until_arrived()
+    assert f.time >= t_end + 0.3 - 1e-9
+    s = f.state
+    assert np.linalg.norm(s.position - [0.5, 0, 1.0]) < f.cfg.control.arrive_pos_tol
+    assert np.linalg.norm(s.velocity) < f.cfg.control.arrive_speed_tol
+    # A target inside the wall cannot be reached: give up after the timeout, with a note.
+    target = Hold(np.array([WALL_X + 0.1, 0.0, 1.0]), 0.0).sample(0.0)
+    t0 = f.time
+    assert not f.wait_until_arrived(target, timeout=1.0)
+    assert f.time - t0 == pytest.approx(1.0, abs=2 * f.control_dt)
+    assert "did not settle" in f.log.notes[-1]
+
+
+def test_pose_noise_has_the_configured_spread_and_truth_is_kept():
+    f = flight("sim.pose_noise_pos_m=0.02", "sim.pose_noise_rot_deg=1.0")
+    T = f.camera_pose()
+    noisy = np.array([f.estimated_camera_pose(T) for _ in range(2000)])
+    np.testing.assert_allclose(noisy[:, :3, 3].std(axis=0), 0.02, rtol=0.1)
+    ang = np.degrees(np.arccos(np.clip((np.einsum("nij,ij->n", noisy[:, :3, :3], T[:3, :3]) - 1) / 2, -1, 1)))
+    # |rotation| of a 3D isotropic Gaussian rotation vector: RMS = sqrt(3) * sigma.
+    assert np.sqrt(np.mean(ang ** 2)) == pytest.approx(math.sqrt(3.0), rel=0.1)
+    np.testing.assert_allclose(f.camera_pose(), T)  # the simulated pose itself is untouched
+    clean = flight()
+    np.testing.assert_array_equal(clean.estimated_camera_pose(), clean.camera_pose())

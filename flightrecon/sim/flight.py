@@ -210,6 +210,13 @@ class Flight:
         self.sync()
         return self.drone.camera_pose(self.data)
 
+    def capture(self, camera) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """RGB-D from drone_cam at the current state with `camera` (a sim.camera.RGBDCamera built from
+        the same camera config): (rgb, depth, T_wc as given to mapping (noisy if configured), T_wc true)."""
+        self.sync()
+        rgb, depth, T_wc = camera.render_named("drone_cam")
+        return rgb, depth, self.estimated_camera_pose(T_wc), T_wc
+
     def estimated_camera_pose(self, T_wc: np.ndarray | None = None) -> np.ndarray:
         """T_wc with the configured pose noise (sim.pose_noise_pos_m, sim.pose_noise_rot_deg)."""
         T = (self.camera_pose() if T_wc is None else np.asarray(T_wc, float)).copy()
