@@ -152,7 +152,7 @@ Bins bin_and_sort(const Projected<S>& P, int64_t N, const Settings& st) {
 template <typename S>
 struct Hit {
   S u, v, z, q2, rho3, rho2, g, a;
-  bool ok;
+  bool use3, ok;
 };
 
 template <typename S>
@@ -166,10 +166,12 @@ inline Hit<S> hit(const S* M, S mx, S my, S o, S x, S y, S near) {
   h.q2 = q2;
   h.u = q0 * inv;
   h.v = q1 * inv;
-  h.z = M[6] * h.u + M[7] * h.v + M[8];
   h.rho3 = std::min(h.u * h.u + h.v * h.v, S(1e4));
   const S dx = x - mx, dy = y - my;
   h.rho2 = S(FILTER_INV_SQ) * (dx * dx + dy * dy);
+  // Where the low-pass filter wins the hit is not on the splat: use the center depth (2DGS).
+  h.use3 = h.rho3 <= h.rho2;
+  h.z = h.use3 ? M[6] * h.u + M[7] * h.v + M[8] : M[8];
   h.g = std::exp(S(-0.5) * std::min(h.rho3, h.rho2));
   h.a = std::min(S(ALPHA_MAX), o * h.g);
   h.ok = nz && h.z >= near && h.a >= S(ALPHA_MIN);
@@ -437,13 +439,12 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
       const bool free_a = blend && o * h.g < S(ALPHA_MAX);
       const S dOp = free_a ? dA * h.g : S(0);
       const S drho = free_a ? S(-0.5) * dA * a : S(0);
-      const bool use3 = h.rho3 <= h.rho2;
-      S du = use3 ? drho * S(2) * h.u : S(0);
-      S dv = use3 ? drho * S(2) * h.v : S(0);
+      const bool use3 = h.use3;
+      const S dzu = use3 ? dz : S(0);
+      const S du = (use3 ? drho * S(2) * h.u : S(0)) + M[6] * dzu;
+      const S dv = (use3 ? drho * S(2) * h.v : S(0)) + M[7] * dzu;
       const S dmx = use3 ? S(0) : drho * S(FILTER_INV_SQ) * S(-2) * (px[p] - mx);
       const S dmy = use3 ? S(0) : drho * S(FILTER_INV_SQ) * S(-2) * (py[p] - my);
-      du += M[6] * dz;
-      dv += M[7] * dz;
       const S inv = S(1) / (h.q2 != 0 ? h.q2 : S(1));
       const S dq0 = du * inv, dq1 = dv * inv, dq2 = -(du * h.u + dv * h.v) * inv;
       const S x = px[p], y = py[p];
@@ -454,8 +455,8 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
       const S dl0 = dq1 * k2 - dq2 * k1, dl1 = dq2 * k0 - dq0 * k2, dl2 = dq0 * k1 - dq1 * k0;
       gg[0][p] = -dk0; gg[1][p] = -dk1; gg[2][p] = -dk2;
       gg[3][p] = -dl0; gg[4][p] = -dl1; gg[5][p] = -dl2;
-      gg[6][p] = x * dk0 + y * dl0 + h.u * dz;
-      gg[7][p] = x * dk1 + y * dl1 + h.v * dz;
+      gg[6][p] = x * dk0 + y * dl0 + h.u * dzu;
+      gg[7][p] = x * dk1 + y * dl1 + h.v * dzu;
       gg[8][p] = x * dk2 + y * dl2 + dz;
       gg[9][p] = dmx;
       gg[10][p] = dmy;

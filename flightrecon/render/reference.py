@@ -4,7 +4,8 @@ Written from the equations, not from the kernel: every pixel's ray is intersecte
 splat's plane geometrically (ray-plane intersection, then local coordinates by projecting onto the
 tangents), the low-pass center is the center of the image conic obtained by inverting the
 homography, blending uses cumulative products, and the distortion uses the one-pass running sums of
-baselines.md. No tiles and no Python loops over pixels or splats; pixels are processed in chunks so
+baselines.md. As in 2DGS, a pixel where the low-pass term wins takes the splat's center depth
+(the ray-plane hit is meaningless there: tens of meters away for a grazing splat). No tiles and no Python loops over pixels or splats; pixels are processed in chunks so
 that the [pixels, splats] intermediates fit in memory. Autograd gives its gradients.
 """
 
@@ -56,10 +57,11 @@ def _render_camera(means, U, V, n, opacity, feats, viewmat, K, width, height, ne
         r = X - p_c
         u = (r * U_c).sum(-1) / (U_c * U_c).sum(-1)
         v = (r * V_c).sum(-1) / (V_c * V_c).sum(-1)
-        z = X[..., 2]
-        ok = ok & (z >= near)
         rho3 = u * u + v * v
         rho2 = FILTER_INV_SQ * ((pix[s:s + step, None, :] - center) ** 2).sum(-1)
+        # where the low-pass filter wins, the hit is not on the splat: use its center depth
+        z = torch.where(rho3 <= rho2, X[..., 2], p_c[:, 2])
+        ok = ok & (z >= near)
         a = torch.clamp_max(o * torch.exp(-0.5 * torch.minimum(rho3, rho2)), ALPHA_MAX)
         a = torch.where(ok & (a >= ALPHA_MIN), a, torch.zeros_like(a))
         T_incl = torch.cumprod(1 - a, dim=-1)
