@@ -116,15 +116,25 @@ def test_flying_into_a_wall_records_a_contact():
     assert WALL_X - f.log["x"][row] < f.cfg.drone.body_radius + 0.02
 
 
-def test_divergence_stops_with_a_message_and_keeps_the_log():
+@pytest.mark.parametrize("upset", ["roll", "nan_state", "nan_motor"])
+def test_divergence_stops_with_a_message_and_keeps_the_log(upset):
     f = flight()
     f.hover(0.5)
     h = f.drone
-    f.data.qvel[h.qvel_adr + 3] = 200.0  # violent roll
-    with pytest.raises(FlightDiverged, match="tilted") as exc:
+    if upset == "roll":
+        f.data.qvel[h.qvel_adr + 3] = 200.0  # violent roll
+        match = "tilted"
+    elif upset == "nan_state":
+        f.data.qpos[h.qpos_adr] = np.nan
+        match = "NaN"
+    else:
+        f.data.act[h.act_adr[0]] = np.nan  # NaN appears inside the physics step; MuJoCo resets
+        match = "NaN"
+    with pytest.raises(FlightDiverged, match=match) as exc:
         f.hover(2.0)
-    assert len(exc.value.log) > 100 and exc.value.log is f.log
+    assert len(exc.value.log) >= 100 and exc.value.log is f.log
     assert f.log.notes and "diverged" in f.log.notes[0]
+    assert f.log["t"][-1] >= 0.5 - 1e-9  # the record up to the failure is kept
 
 
 @pytest.mark.parametrize("pitch", [0.0, 25.0])

@@ -32,6 +32,8 @@ COLUMNS = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "vx", "vy", "vz", "wx", "
            "ref_x", "ref_y", "ref_z", "ref_vx", "ref_vy", "ref_vz", "ref_yaw",
            "cmd0", "cmd1", "cmd2", "cmd3", "thrust0", "thrust1", "thrust2", "thrust3", "clearance")
 _COL = {name: i for i, name in enumerate(COLUMNS)}
+_BAD_STATE_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                       mujoco.mjtWarning.mjWARN_BADQACC)
 
 
 class FlightLog:
@@ -108,6 +110,11 @@ class Flight:
         self.log = FlightLog()
         self.last_reference: FlatState | None = None
         self._rng = np.random.default_rng([cfg.seed, 7919])
+        self._bad_warnings_seen = self._bad_state_warnings()
+
+    def _bad_state_warnings(self) -> int:
+        w = self.data.warning
+        return sum(int(w[i].number) for i in _BAD_STATE_WARNINGS)
 
     @classmethod
     def from_world(cls, world, cfg: ScenarioConfig, clearance: ClearanceMonitor | None = None) -> "Flight":
@@ -144,6 +151,12 @@ class Flight:
             raise FlightDiverged(msg, self.log)
         self.drone.set_motor_commands(self.data, cmd)
         mujoco.mj_step(self.model, self.data, self.substeps)
+        if self._bad_state_warnings() != self._bad_warnings_seen:
+            # MuJoCo replaces a NaN/inf state by its initial one and only warns: that is divergence.
+            msg = (f"flight diverged at t={row[0]:.3f}s: the physics produced NaN or inf and MuJoCo "
+                   f"reset the state; the log keeps {len(self.log)} steps")
+            self.log.notes.append(msg)
+            raise FlightDiverged(msg, self.log)
         self.last_reference = ref
         events = self.contacts.update(self.data)
         if events:
