@@ -151,7 +151,8 @@ class Flight:
             raise FlightDiverged(msg, self.log)
         self.drone.set_motor_commands(self.data, cmd)
         mujoco.mj_step(self.model, self.data, self.substeps)
-        if self._bad_state_warnings() != self._bad_warnings_seen:
+        seen, self._bad_warnings_seen = self._bad_warnings_seen, self._bad_state_warnings()
+        if self._bad_warnings_seen > seen:  # (a data reset elsewhere lowers the count: not divergence)
             # MuJoCo replaces a NaN/inf state by its initial one and only warns: that is divergence.
             msg = (f"flight diverged at t={row[0]:.3f}s: the physics produced NaN or inf and MuJoCo "
                    f"reset the state; the log keeps {len(self.log)} steps")
