@@ -168,3 +168,35 @@ def test_a_start_closer_than_required_can_still_leave(setup):
         far = np.linalg.norm(pos - start_pos, axis=1) >= required - d0 + planner.field.voxel_size
         assert d[far].min(initial=np.inf) >= required - 1e-6
         assert d.min() >= d0 - planner.field.voxel_size / 2 - 1e-6
+
+
+def test_planning_on_the_online_map_rejects_unknown_and_occupied_targets():
+    from test_occupancy import _raycast_depth
+
+    from flightrecon.geometry import backproject_depth, camera_pose, intrinsics
+
+    mesh = _scene()
+    cfg = load_config(None)  # online occupancy map
+    planner = Planner(cfg, WORKSPACE, start_position=START)
+    w, h = 120, 90
+    K = intrinsics(w, h, 90.0)
+    for yaw in (np.pi / 2, -np.pi / 2, np.pi):  # look left, right and back; never at the wall ahead
+        T = camera_pose(START, yaw)
+        depth = _raycast_depth(mesh, K, T, w, h)
+        planner.integrate(depth, K, T, body_position=START)
+    seen_surface = backproject_depth(depth, K, T)[0][(h // 2) * w + w // 3]  # on the crate or back wall
+    start = FlatState(START, np.zeros(3), np.zeros(3), 0.0, 0.0)
+    goals = np.array([
+        [1.3, 0.0, 1.2],    # behind the wall, never seen
+        seen_surface,       # a surface point seen in the last frame: occupied
+        [0.0, 1.2, 1.2],    # in the seen free space to the left
+        [0.0, 0.0, 3.4],    # out of bounds
+    ])
+    res = planner.check(start, goals, np.zeros(4))
+    assert [r.reason for r in res] == ["unknown_space", "in_obstacle", "feasible", "out_of_bounds"]
+    _independent_check(res[2].trajectory, cfg, start, goals[2], 0.0, planner.field, mesh)
+    results = planner.check_library(start)
+    for r in results:
+        if r.feasible:  # every reachable candidate lies in space the camera saw free
+            assert planner.occupancy.state(r.position[None])[0] == 1
+    assert any(r.reason == "unknown_space" for r in results)

@@ -1,5 +1,8 @@
 """Feasibility of a whole candidate library: the set the view selector scores.
 
+On the online map, occupied space must stay beyond body radius + safety margin and unknown space
+beyond the body radius (both through one field, see OccupancyMap.distance_field).
+
 For every candidate the check returns feasible or the first reason it is not:
 out_of_bounds (outside the workspace box), in_obstacle / unknown_space (the target voxel), clearance
 (the target, or every trajectory found, comes closer than body radius + safety margin),
@@ -262,17 +265,20 @@ class Planner:
         self._field = None
 
     def mark_body_free(self, position: np.ndarray) -> None:
-        """Where the drone hovers is free (its body proves it) out to its required clearance, so the
-        unseen blind cones above and below the camera do not pin it in place."""
+        """Assume the unseen space within body radius + safety margin + two voxels of where the drone
+        hovers is free (its body proves the inner part): the camera's blind cones above and below
+        would otherwise pin it in place, as nothing may come within its body of unknown space."""
         if self.occupancy is None:
             return
-        self.occupancy.mark_free_sphere(position, self.settings.required_clearance + self.cfg.planner.voxel_size)
+        radius = self.settings.required_clearance + 2 * self.cfg.planner.voxel_size
+        self.occupancy.mark_free_sphere(position, radius)
         self._field = None
 
     @property
     def field(self) -> DistanceField:
+        """Planning clearance: to the true scene, or min(d_occupied, d_unknown + safety margin)."""
         if self._field is None:
-            self._field = self.occupancy.distance_field()
+            self._field = self.occupancy.distance_field(unknown_offset=self.cfg.planner.safety_margin)
         return self._field
 
     def target_states(self, positions: np.ndarray) -> np.ndarray:

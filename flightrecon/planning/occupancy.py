@@ -6,7 +6,8 @@ every voxel in the camera's view asks its own pixel whether the measured surface
 hit in a frame counts as occupied for that frame even if another ray passed through it. Evidence is
 accumulated as clamped log-odds (hit +0.85, pass -0.4, OctoMap's usual values), so a wall seen once
 survives a few grazing rays. Invalid depth (0: nothing within range) carves nothing. Voxels never
-touched stay unknown; planning treats unknown like occupied (it never flies through the unseen).
+touched stay unknown; planning never flies through the unseen: its body keeps clear of unknown
+space, and its safety margin keeps clear of occupied space (`distance_field(unknown_offset)`).
 """
 
 from __future__ import annotations
@@ -119,9 +120,18 @@ class OccupancyMap:
         """Not flyable: occupied or unknown."""
         return ~self.free()
 
-    def distance_field(self, signed: bool = False) -> DistanceField:
-        """Clearance to everything not known free (unknown counts as an obstacle)."""
-        return DistanceField.from_blocked(self.blocked(), self.origin, self.voxel_size, signed=signed)
+    def distance_field(self, unknown_offset: float = 0.0) -> DistanceField:
+        """Clearance to everything not known free (unknown counts as an obstacle).
+
+        With `unknown_offset` > 0 the reading near unknown space is raised by it: a planner that
+        requires body radius + safety margin then keeps the margin from what it saw occupied but
+        only the body from what it has not seen (min(d_occupied, d_unknown + offset))."""
+        if unknown_offset <= 0:
+            return DistanceField.from_blocked(self.blocked(), self.origin, self.voxel_size, signed=False)
+        occupied = DistanceField.from_blocked(self.occupied(), self.origin, self.voxel_size, signed=False)
+        unknown = DistanceField.from_blocked(~self.observed, self.origin, self.voxel_size, signed=False)
+        values = np.minimum(occupied.values, unknown.values + np.float32(unknown_offset))
+        return DistanceField(values, self.origin, self.voxel_size)
 
     def _index(self, pts: np.ndarray) -> np.ndarray:
         return np.floor((pts - self.origin) / self.voxel_size).astype(np.int64)
