@@ -146,22 +146,22 @@ class Flight:
         self.log.append(row)
         reason = divergence_reason(row[1:14], R[8], self.cfg.sim.divergence_tilt_deg)
         if reason is not None:
-            msg = f"flight diverged at t={self.data.time:.3f}s: {reason}; the log keeps {len(self.log)} steps"
-            self.log.notes.append(msg)
-            raise FlightDiverged(msg, self.log)
+            self._diverged(row[0], reason)
         self.drone.set_motor_commands(self.data, cmd)
         mujoco.mj_step(self.model, self.data, self.substeps)
         seen, self._bad_warnings_seen = self._bad_warnings_seen, self._bad_state_warnings()
         if self._bad_warnings_seen > seen:  # (a data reset elsewhere lowers the count: not divergence)
             # MuJoCo replaces a NaN/inf state by its initial one and only warns: that is divergence.
-            msg = (f"flight diverged at t={row[0]:.3f}s: the physics produced NaN or inf and MuJoCo "
-                   f"reset the state; the log keeps {len(self.log)} steps")
-            self.log.notes.append(msg)
-            raise FlightDiverged(msg, self.log)
+            self._diverged(row[0], "the physics produced NaN or inf and MuJoCo reset the state")
         self.last_reference = ref
         events = self.contacts.update(self.data)
         if events:
             self.log.events.extend(events)
+
+    def _diverged(self, t: float, reason: str) -> None:
+        msg = f"flight diverged at t={t:.3f}s: {reason}; the log keeps {len(self.log)} steps"
+        self.log.notes.append(msg)
+        raise FlightDiverged(msg, self.log)
 
     def fly(self, trajectory: Trajectory, extra_time: float = 0.0) -> FlightLog:
         """Track `trajectory` from its start for its duration (+ `extra_time` holding its end)."""
