@@ -113,35 +113,34 @@ def time_path(waypoints: np.ndarray, yaws: np.ndarray, limits: Limits,
         vias[0] = start_vel
     if not stop_at_waypoints and n > 2:
         vias[1:-1] = via_velocities(wp, yw, limits)
-    acc0 = np.zeros(4) if start_acc is None else np.asarray(start_acc, float)
+    acc0 = [0.0] * 4 if start_acc is None else [float(x) for x in start_acc]
     otg = Ruckig(4)
     vmax, amax, jmax = limits.arrays()
+    pts = np.concatenate([wp, yw[:, None]], axis=1).tolist()  # plain floats: cheap to hand to ruckig
+    vel = vias.tolist()
     starts: list[list[np.ndarray]] = [[] for _ in range(4)]
     coeffs: list[list[np.ndarray]] = [[] for _ in range(4)]
     t0 = 0.0
     acc = acc0
     for i in range(n - 1):
         inp = InputParameter(4)
-        inp.current_position = [*wp[i], yw[i]]
-        inp.current_velocity = list(vias[i])
-        inp.current_acceleration = list(acc)
-        inp.target_position = [*wp[i + 1], yw[i + 1]]
-        inp.target_velocity = list(vias[i + 1])
+        inp.current_position, inp.current_velocity, inp.current_acceleration = pts[i], vel[i], acc
+        inp.target_position, inp.target_velocity = pts[i + 1], vel[i + 1]
         inp.target_acceleration = [0.0] * 4
         inp.max_velocity, inp.max_acceleration, inp.max_jerk = vmax, amax, jmax
-        if not np.any(vias[i]) and not np.any(vias[i + 1]) and not np.any(acc):
+        if not any(vel[i]) and not any(vel[i + 1]) and not any(acc):
             # Rest to rest: phase synchronization keeps x, y, z on the straight leg (ruckig only
             # honours it for all axes together; mixing per-axis modes silently drops it).
             inp.synchronization = Synchronization.Phase
         seg = _segment(otg, inp, RuckigTrajectory(4))
         if seg is None:
             return None
-        for ax in range(4):
-            s, c = _phases(seg.profiles[0][ax])
+        for ax, profile in enumerate(seg.profiles[0]):
+            s, c = _phases(profile)
             starts[ax].append(s + t0)
             coeffs[ax].append(c)
         t0 += seg.duration
-        acc = np.zeros(4)
+        acc = [0.0] * 4
     if n < 2:
         for ax, val in enumerate([*wp[0], yw[0]]):
             starts[ax].append(np.zeros(1))
@@ -150,24 +149,24 @@ def time_path(waypoints: np.ndarray, yaws: np.ndarray, limits: Limits,
 
 
 def _phases(profile) -> tuple[np.ndarray, np.ndarray]:
-    """Start times and (p0, v0, a0, jerk) rows of one axis profile, its brake pre-phases included."""
-    rows, times = [], []
-    t = 0.0
+    """Start times and (p0, v0, a0, jerk) rows of one axis profile, its brake pre-phases included.
+
+    Each attribute read converts a whole C++ array, so every one is read once."""
+    durations = np.asarray(profile.t)
+    rows = np.empty((8, 4))
+    rows[:, 0], rows[:, 1], rows[:, 2] = profile.p, profile.v, profile.a
+    rows[:7, 3] = profile.j
+    rows[7, 3] = 0.0  # the final state is held after the last phase (exact end values)
+    times = np.concatenate([[0.0], np.cumsum(durations)])
     brake = profile.brake
     if brake.duration > 0:
-        for k in range(2):
-            if brake.t[k] > 0:
-                times.append(t)
-                rows.append((brake.p[k], brake.v[k], brake.a[k], brake.j[k]))
-                t += brake.t[k]
-    for k in range(7):
-        times.append(t)
-        rows.append((profile.p[k], profile.v[k], profile.a[k], profile.j[k]))
-        t += profile.t[k]
-    # Final state held after the last phase (exact end values, no cubic drift).
-    times.append(t)
-    rows.append((profile.p[7], profile.v[7], profile.a[7], 0.0))
-    return np.array(times), np.array(rows)
+        bt = np.asarray(brake.t)
+        keep = bt > 0
+        b_rows = np.stack([brake.p, brake.v, brake.a, brake.j], axis=1)[keep]
+        b_times = np.concatenate([[0.0], np.cumsum(bt)[:-1]])[keep]
+        times = np.concatenate([b_times, times + brake.duration])
+        rows = np.concatenate([b_rows, rows])
+    return times, rows
 
 
 def via_velocities(wp: np.ndarray, yaws: np.ndarray, limits: Limits) -> np.ndarray:
