@@ -249,3 +249,36 @@ def test_planner_ruckig_trajectory_is_tracked():
     log = f.fly(traj, extra_time=1.0)
     assert log.tracking_rms() < 0.05
     assert np.abs(yaw_series(log)[-1] - 0.5) < math.radians(1.0)
+
+
+def _open_loop(cfg_overrides=()):
+    cfg = load_config(None, list(cfg_overrides))
+    model, data = box_world(cfg)
+    model.opt.timestep = 0.001
+    h = DroneHandle(model)
+    h.set_pose(model, data, np.array([0.0, 0.0, 1.5]), 0.0)
+    return cfg, model, data, h
+
+
+def test_plant_motor_lag_drag_and_yaw_reaction_follow_their_laws():
+    cfg, model, data, h = _open_loop()
+    hover = h.mass * 9.81 / 4
+    tau, c, k = cfg.drone.motor_time_constant, cfg.drone.linear_drag, cfg.drone.yaw_torque_coeff
+    # First-order lag: a step of the command reaches 1 - exp(-t / tau) of the change.
+    h.set_motor_commands(data, np.full(4, hover + 2.0))
+    n = int(round(tau / model.opt.timestep))
+    mujoco.mj_step(model, data, n)
+    mujoco.mj_forward(model, data)
+    np.testing.assert_allclose(h.motor_thrusts(data) - hover, 2.0 * (1 - math.exp(-1.0)), rtol=0.02)
+    # Linear drag: coasting level at hover thrust, horizontal speed decays as exp(-c t / m).
+    cfg, model, data, h = _open_loop()
+    data.qvel[h.qvel_adr] = 1.0
+    mujoco.mj_step(model, data, 500)
+    assert data.qvel[h.qvel_adr] == pytest.approx(math.exp(-c * 0.5 / h.mass), rel=0.01)
+    # Yaw reaction: +d on the rotors with spin sign +1, -d on the others, gives Izz * wz' = 4 k d.
+    cfg, model, data, h = _open_loop(["drone.motor_time_constant=0.0"])
+    d = 0.5
+    h.set_motor_commands(data, hover + d * h.spin_sign)
+    mujoco.mj_step(model, data, 100)
+    wz = data.qvel[h.qvel_adr + 5]
+    assert wz == pytest.approx(4 * k * d / h.inertia[2] * 0.1, rel=0.02)
