@@ -27,9 +27,14 @@ def _ompl():
 
 
 def seed_ompl(seed: int) -> None:
-    """Seed OMPL's global RNG; only effective before its first planner is created."""
+    """Seed OMPL's global seed generator: the planners created afterwards sample repeatably.
+
+    Re-seeding after planning has started works too (checked: same seed, same path); OMPL then
+    logs an error that it may not, which is silenced here."""
     _, _, ou = _ompl()
-    ou.RNG.setSeed(int(seed) + 1)  # OMPL rejects seed 0
+    ou.setLogLevel(ou.LogLevel.LOG_NONE)
+    ou.RNG.setSeed(int(seed) % (2**31 - 1) + 1)  # OMPL rejects seed 0
+    ou.setLogLevel(ou.LogLevel.LOG_ERROR)
 
 
 def plan_path(field: DistanceField, start: np.ndarray, goal: np.ndarray, required: float,
