@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field as dc_field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -81,7 +81,6 @@ class PlanningTimes:
     straight: float = 0.0
     ompl: float = 0.0
     n_ompl: int = 0
-    extra: dict = dc_field(default_factory=dict)
 
 
 def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settings: PlanningSettings,
