@@ -103,6 +103,8 @@ class PlannerConfig:
     use_ground_truth: bool = _f(False, doc="plan on the true scene instead of the online occupancy map")
     library: str = _f("default", doc="'default' (198 candidates) or a path to a TOML candidate list")
     ompl_time_limit: float = _f(0.05, 0.001, 10.0, doc="s per OMPL query")
+    hover_free_radius: float = _f(0.6, 0.0, 5.0, doc="m; never-seen space this close to where the drone "
+                                  "hovered is assumed free (the camera's blind cones above and below)")
 
 
 @dataclass(frozen=True)
@@ -160,10 +162,39 @@ class EvaluationConfig:
 
 
 @dataclass(frozen=True)
+class MetricsConfig:
+    tsdf_voxel: float = _f(0.02, 0.002, 1.0, doc="voxel size of the TSDF fusion of rendered depth (m)")
+    tsdf_truncation: float = _f(0.06, 0.004, 5.0, doc="TSDF truncation distance (m)")
+    sample_points: int = _f(200000, 100, 100000000, doc="points sampled on each mesh for Acc/Comp/CD/F-score")
+    fscore_threshold: float = _f(0.05, 1e-4, 1.0, doc="distance threshold of the F-score (m)")
+    visibility_tolerance: float = _f(0.05, 0.0, 1.0, doc="a point counts as seen by an evaluation view when "
+                                     "at most this far behind its ground-truth depth (m)")
+    lpips_weights: str = _f("", doc="local LPIPS weights (a torch file of the `lpips` package's net); "
+                            "empty: LPIPS is reported as n/a, nothing is downloaded")
+
+
+@dataclass(frozen=True)
+class BaselinesConfig:
+    gaussmi_lambda_L: float = _f(1.7, 1e-6, 1e6, doc="GauSS-MI loss-image scale")
+    gaussmi_lambda_T: float = _f(10.0, 0.0, 1e6, doc="GauSS-MI evidence weight")
+    fisherrf_lambda: float = _f(1e-6, 0.0, 1e3, doc="FisherRF Hessian regularizer")
+    activegs_voxel: float = _f(0.2, 0.02, 2.0, doc="ActiveGS exploration voxel size (m)")
+    activegs_extent: list = _f([16.0, 16.0, 5.0], doc="ActiveGS voxel grid size around the first camera (m)")
+    activegs_path_weight: float = _f(0.5, 0.0, 100.0, doc="ActiveGS path-length term weight")
+
+
+@dataclass(frozen=True)
 class OutputConfig:
     run_root: str = _f("runs")
     record: bool = _f(True, doc="write recording.rrd")
     checkpoint: bool = _f(True)
+    record_map_every: int = _f(5, 1, None, doc="log the splat map every k frames (and at the last frame)")
+    record_map_max_splats: int = _f(60000, 1, None, doc="splats logged per map snapshot (an even stride beyond)")
+    record_mesh_cell: float = _f(0.06, 0.005, 1.0, doc="vertex-clustering cell of the recorded scene mesh (m)")
+    record_jpeg_quality: int = _f(85, 1, 100, doc="JPEG quality of recorded color and normal images")
+    record_pose_rate_hz: float = _f(20.0, 1.0, 1000.0, doc="drone pose and clearance samples per simulated second")
+    viewer_port: int = _f(9876, 1, 65535, doc="gRPC port of the live viewer (fly --rerun)")
+    web_port: int = _f(9090, 1, 65535, doc="HTTP port of the web viewer (fly --rerun headless, view --web)")
 
 
 @dataclass(frozen=True)
@@ -181,6 +212,8 @@ class ScenarioConfig:
     selector: SelectorConfig = field(default_factory=SelectorConfig)
     budget: BudgetConfig = field(default_factory=BudgetConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
+    metrics: MetricsConfig = field(default_factory=MetricsConfig)
+    baselines: BaselinesConfig = field(default_factory=BaselinesConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
 
 
