@@ -214,6 +214,23 @@ class Flight:
                               f"within {timeout:g}s")
         return False
 
+    # ------------------------------------------------------------------ checkpoints
+    def get_state(self) -> dict:
+        """Everything needed to continue this flight bit-exactly: MuJoCo's integration state (incl.
+        warm start and motor activations), the last reference, the noise RNG and the log."""
+        kind = mujoco.mjtState.mjSTATE_INTEGRATION
+        sim = np.empty(mujoco.mj_stateSize(self.model, kind))
+        mujoco.mj_getState(self.model, self.data, sim, kind)
+        return {"sim": sim, "last_reference": self.last_reference, "rng": self._rng.bit_generator.state,
+                "log": self.log, "controller": self.controller}
+
+    def set_state(self, state: dict) -> None:
+        """Restore a `get_state()` snapshot into this flight's (identically built) world."""
+        mujoco.mj_setState(self.model, self.data, state["sim"], mujoco.mjtState.mjSTATE_INTEGRATION)
+        mujoco.mj_forward(self.model, self.data)
+        self.last_reference, self.log, self.controller = state["last_reference"], state["log"], state["controller"]
+        self._rng.bit_generator.state = state["rng"]
+
     # ------------------------------------------------------------------ camera
     def sync(self) -> None:
         """Recompute kinematics for the current state, so camera poses and renders match qpos."""
