@@ -82,3 +82,63 @@ def test_ompl_detour_around_a_wall_is_flown_without_contact():
     assert flight.log.events == [], [e.describe() for e in flight.log.events]
     assert np.nanmin(log["clearance"]) > 0.0
     assert np.linalg.norm(log.positions[-1] - goal) < 0.05
+
+
+@pytest.mark.slow
+def test_steps_planned_on_the_online_map_keep_clear_of_the_true_scene():
+    """Closed loop on what the camera saw: turn in place capturing, then library steps on the map."""
+    from flightrecon.planning.distance_field import DistanceField
+    from flightrecon.planning.poses import start_position, workspace_of
+    from flightrecon.scene.source import procedural_scene
+    from flightrecon.sim.camera import RGBDCamera
+    from flightrecon.sim.flight import Flight
+    from flightrecon.sim.safety import ClearanceMonitor
+    from flightrecon.sim.world import build_world
+
+    cfg = load_config(None, ["scene.name=room0", "camera.width=160", "camera.height=120"])
+    scene = procedural_scene("room0", 0)
+    ws = workspace_of(scene)
+    start = start_position(scene, cfg.sim.takeoff_height)
+    planner = Planner(cfg, ws, start_position=start)  # online occupancy map
+    truth = DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size, ws + np.array([[-0.5], [0.5]]),
+                                    free_seeds=start[None])
+    world = build_world(scene, cfg)
+    cam = RGBDCamera(world, cfg.camera.width, cfg.camera.height, cfg.camera.hfov_deg, cfg.camera.near, cfg.camera.far)
+    flight = Flight.from_world(world, cfg, ClearanceMonitor(truth, cfg.drone.body_radius))
+    flight.start(start, 0.0)
+    rng = np.random.default_rng(1)
+    required = cfg.drone.body_radius + cfg.planner.safety_margin
+
+    def capture():
+        _, depth, T_wc, _ = flight.capture(cam)
+        planner.integrate(depth, cam.K, T_wc, body_position=flight.state.position)
+
+    def now() -> FlatState:
+        s = flight.state
+        return FlatState(s.position, s.velocity, np.zeros(3), s.yaw, 0.0)
+
+    def fly(r):
+        pos = r.trajectory.evaluate(np.arange(0.0, r.duration, 1e-3))[0][:, :3]
+        assert truth.distance(pos).min() >= required - truth.accuracy  # the plan itself is clear
+        log = flight.fly(r.trajectory, extra_time=0.3)
+        assert np.nanmin(log["clearance"]) > 0.0
+        flight.wait_until_arrived()
+
+    capture()
+    for k in range(1, 4):  # the mission's initial views: turn in place
+        s = now()
+        (r,) = planner.check(s, s.position[None], np.array([s.yaw + np.pi / 2]))
+        assert r.feasible, r.reason
+        fly(r)
+        capture()
+    moved = 0
+    for _ in range(4):
+        results = planner.check_library(now())
+        moves = [r for r in results if r.feasible and r.length > 0.25]
+        assert moves, {r.reason for r in results}
+        fly(moves[rng.integers(len(moves))])
+        capture()
+        moved += 1
+    cam.close()
+    assert flight.log.events == [], [e.describe() for e in flight.log.events]
+    assert moved == 4

@@ -264,13 +264,13 @@ class Planner:
         self._field = None
 
     def mark_body_free(self, position: np.ndarray) -> None:
-        """Assume the unseen space within body radius + safety margin + two voxels of where the drone
-        hovers is free (its body proves the inner part): the camera's blind cones above and below
-        would otherwise pin it in place, as nothing may come within its body of unknown space."""
+        """Assume the never-seen space within planner.hover_free_radius of where the drone hovers is
+        free. Its body proves the inner part; without the rest, the camera's blind cones above and
+        below (a level camera sees +-37 deg vertically) would pin it in place, as its body may not
+        come near unknown space. What the camera has seen is never overridden."""
         if self.occupancy is None:
             return
-        radius = self.settings.required_clearance + 2 * self.cfg.planner.voxel_size
-        self.occupancy.mark_free_sphere(position, radius)
+        self.occupancy.mark_free_sphere(position, self.cfg.planner.hover_free_radius)
         self._field = None
 
     @property

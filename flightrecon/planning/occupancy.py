@@ -71,11 +71,16 @@ class OccupancyMap:
               + R[:, 2, None, None, None] * cz[None, None, None, :] + t[:, None, None, None]).astype(np.float32)
         z = pc[2]
         with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.floor(K[0, 0] * pc[0] / z + K[0, 2])
-            v = np.floor(K[1, 1] * pc[1] / z + K[1, 2])
-        in_view = (z > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+            u = K[0, 0] * pc[0] / z + K[0, 2]
+            v = K[1, 1] * pc[1] / z + K[1, 2]
+            # A voxel whose center lies just outside the image is still crossed by the border rays
+            # (e.g. at the seams of views a quarter turn apart): half a voxel of slack, in pixels.
+            slack = np.float32(0.5 * h * K[0, 0]) / z
+        in_view = (z > 0) & (u > -slack) & (u < W + slack) & (v > -slack) & (v < H + slack)
         sel = np.nonzero(in_view)
-        d = depth[v[sel].astype(np.int64), u[sel].astype(np.int64)]
+        ui = np.clip(u[sel], 0, W - 1).astype(np.int64)
+        vi = np.clip(v[sel], 0, H - 1).astype(np.int64)
+        d = depth[vi, ui]
         # The ray passed this voxel if the surface is more than a voxel behind its center.
         passed = (d > 0) & (z[sel] < d - h)
         free = np.zeros(self.shape, bool)
