@@ -1,7 +1,8 @@
 """`flightrecon plan-study SCENARIO`: how kinematic limits, safety margin and library change what is reachable.
 
 For the scenario's scene, the full candidate library is checked from representative free poses for
-every combination of max velocity, max acceleration, safety margin and library. It reports the
+every combination of max velocity, max acceleration, safety margin, library and (optionally) max
+yaw rate. It reports the
 share of feasible candidates, durations, lengths, planning times and the share needing OMPL; with
 --fly, the SE(3) controller flies some feasible trajectories in MuJoCo and the study adds the
 tracking error, the minimum clearance of the body and contacts. Planning uses the ground-truth scene
@@ -41,6 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vel", default="0.5,1.0,2.0", help="max velocities to sweep (m/s)")
     p.add_argument("--acc", default="1.0,2.0,4.0", help="max accelerations to sweep (m/s^2)")
     p.add_argument("--margin", default="0.05,0.1,0.2", help="safety margins to sweep (m)")
+    p.add_argument("--yaw-rate", default="", help="max yaw rates to sweep (deg/s); default: the scenario's. "
+                   "Turns of up to 180 deg often set the duration of these short moves")
     p.add_argument("--library", default="", help="comma-separated libraries ('default' or TOML paths); "
                    "default: the scenario's planner.library")
     p.add_argument("--poses", type=int, default=4, help="poses per combination (the take-off point first)")
@@ -64,12 +67,14 @@ def run(args: argparse.Namespace) -> int:
 
     base = load_config(args.scenario, list(args.overrides) + ["planner.use_ground_truth=true"])
     vels, accs, margins = _floats(args.vel, "vel"), _floats(args.acc, "acc"), _floats(args.margin, "margin")
+    yaw_rates = _floats(args.yaw_rate, "yaw-rate") if args.yaw_rate else [base.planner.max_yaw_rate_deg]
     libraries = [s.strip() for s in args.library.split(",") if s.strip()] or [base.planner.library]
-    combos = list(itertools.product(libraries, vels, accs, margins))
+    combos = list(itertools.product(libraries, yaw_rates, vels, accs, margins))
     # Validate every combination before the expensive part, so a bad value fails at once.
     cfgs = [load_config(args.scenario, list(args.overrides) + [
-        "planner.use_ground_truth=true", f"planner.library={lib}", f"planner.max_vel={v}",
-        f"planner.max_acc={a}", f"planner.safety_margin={m}"]) for lib, v, a, m in combos]
+        "planner.use_ground_truth=true", f"planner.library={lib}", f"planner.max_yaw_rate_deg={w}",
+        f"planner.max_vel={v}", f"planner.max_acc={a}", f"planner.safety_margin={m}"])
+        for lib, w, v, a, m in combos]
     libs = {lib: load_library(lib) for lib in libraries}
     out = Path(args.out) if args.out else Path(base.output.run_root) / base.name / "plan-study"
     scene = scene_from_config(base.scene)
@@ -83,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     poses, yaws = np.vstack([start, poses]), np.concatenate([[0.0], yaws])
     flyer = _Flyer(scene, base, field) if args.fly > 0 else None
     rows = []
-    for (lib, v, a, m), cfg in zip(combos, cfgs):
+    for (lib, w, v, a, m), cfg in zip(combos, cfgs):
         settings = PlanningSettings.from_config(cfg)
         durations, lengths, plan_ms, ompl, n_all, n_ok, reasons, flown = [], [], [], 0, 0, 0, {}, []
         for p, y in zip(poses, yaws):
@@ -105,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
             if flyer is not None and ok and len(flown) < args.fly:
                 longest = max(ok, key=lambda r: r.length)
                 flown.append(flyer.fly(cfg, p, float(y), longest.trajectory))
-        row = {"library": lib, "max_vel": v, "max_acc": a, "safety_margin": m,
+        row = {"library": lib, "max_yaw_rate_deg": w, "max_vel": v, "max_acc": a, "safety_margin": m,
                "share_feasible": n_ok / max(n_all, 1), "share_ompl": ompl / max(n_all, 1),
                "duration_median_s": _med(durations), "duration_max_s": max(durations, default=math.nan),
                "length_median_m": _med(lengths), "plan_ms_median": _med(plan_ms),
@@ -116,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
                         "min_clearance_m": min((f[1] for f in flown), default=math.nan),
                         "contacts": sum(f[2] for f in flown)})
         rows.append(row)
-        print(f"  {lib} vel {v:g} acc {a:g} margin {m:g}: {100 * row['share_feasible']:.0f}% feasible, "
+        print(f"  {lib} yaw rate {w:g} vel {v:g} acc {a:g} margin {m:g}: {100 * row['share_feasible']:.0f}% feasible, "
               f"{row['plan_ms_median']:.0f} ms/library", flush=True)
     if flyer is not None:
         flyer.close()
@@ -180,10 +185,11 @@ def _figure(path: Path, rows: list[dict], scene_name: str) -> None:
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     groups: dict = {}
     for r in rows:
-        groups.setdefault((r["library"], r["max_vel"], r["max_acc"]), []).append(r)
-    for (lib, v, a), rs in groups.items():
+        groups.setdefault((r["library"], r["max_yaw_rate_deg"], r["max_vel"], r["max_acc"]), []).append(r)
+    for (lib, w, v, a), rs in groups.items():
         rs = sorted(rs, key=lambda r: r["safety_margin"])
-        label = f"v {v:g}, a {a:g}" + (f", {lib}" if len({k[0] for k in groups}) > 1 else "")
+        label = (f"v {v:g}, a {a:g}" + (f", yaw {w:g}" if len({k[1] for k in groups}) > 1 else "")
+                 + (f", {lib}" if len({k[0] for k in groups}) > 1 else ""))
         axes[0].plot([r["safety_margin"] for r in rs], [100 * r["share_feasible"] for r in rs], "o-", label=label)
         axes[1].plot([r["safety_margin"] for r in rs], [r["duration_median_s"] for r in rs], "o-", label=label)
         axes[2].plot([r["safety_margin"] for r in rs], [r["plan_ms_median"] for r in rs], "o-", label=label)

@@ -288,10 +288,12 @@ class Planner:
     def check(self, start: FlatState, positions: np.ndarray, yaws: np.ndarray) -> list[CandidateResult]:
         """Feasibility of explicit candidate poses from the current flat state."""
         self.times = PlanningTimes()
-        field = self.field
-        return check_candidates(start, np.asarray(positions, float).reshape(-1, 3), np.asarray(yaws, float),
-                                field, self.target_states(positions), self.workspace, self.settings,
-                                self.times)
+        pos = np.asarray(positions, float).reshape(-1, 3)
+        yaw = np.asarray(yaws, float).reshape(-1)
+        if len(yaw) != len(pos):
+            raise ValueError(f"{len(pos)} candidate positions but {len(yaw)} yaws")
+        return check_candidates(start, pos, yaw, self.field, self.target_states(pos), self.workspace,
+                                self.settings, self.times)
 
     def check_library(self, start: FlatState) -> list[CandidateResult]:
         """Feasibility of the whole library around the current position and heading."""
