@@ -215,3 +215,20 @@ def test_same_seed_same_detour(setup):
         assert r.used_ompl and r.feasible
         runs.append(r.trajectory.evaluate(np.linspace(0, r.duration, 50))[0])
     np.testing.assert_array_equal(runs[0], runs[2])
+
+
+def test_limit_violations_are_rejected_as_limits():
+    mesh = _scene()
+    # Accelerations a quadrotor tilted at most 35 deg cannot produce (atan(12 / 9.81) > 50 deg).
+    cfg = load_config(None, ["planner.use_ground_truth=true", "planner.max_acc=12", "planner.max_jerk=200",
+                             "planner.max_vel=3"])
+    planner = Planner(cfg, WORKSPACE, mesh, start_position=START)
+    start = FlatState(START, np.zeros(3), np.zeros(3), 0.0, 0.0)
+    (r,) = planner.check(start, np.array([[-1.5, -1.5, 1.2]]), np.zeros(1))
+    assert r.reason == "limits" and r.trajectory is None
+    # A start faster than the velocity limit: ruckig brakes first, still beyond the limit.
+    cfg2 = load_config(None, ["planner.use_ground_truth=true"])
+    planner2 = Planner(cfg2, WORKSPACE, mesh, start_position=START)
+    fast = FlatState(START, np.array([-1.6, 0.0, 0.0]), np.zeros(3), 0.0, 0.0)
+    (r2,) = planner2.check(fast, np.array([[-1.5, 0.5, 1.2]]), np.zeros(1))
+    assert r2.reason == "limits"
