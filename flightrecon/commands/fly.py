@@ -26,6 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, e.g. --set camera.width=320 (repeatable)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--rerun", action="store_true",
+                   help="stream the flight live to a rerun viewer (web viewer address printed when headless)")
+    p.add_argument("--no-record", action="store_true", help="write no recording.rrd (output.record=false)")
     p.set_defaults(func=run)
 
 
@@ -35,21 +38,22 @@ def default_out_dir(cfg: ScenarioConfig, mode: str) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     if args.resume:
-        return _run_active(None, Path(args.resume), not args.quiet)
+        return _run_active(None, Path(args.resume), not args.quiet, args)
     if args.scenario is None:
         raise FlightReconError("fly needs a SCENARIO (or --resume RUN_DIR)")
-    cfg = load_config(args.scenario, args.overrides)
+    cfg = load_config(args.scenario, args.overrides + (["output.record=false"] if args.no_record else []))
     progress = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     if args.survey:
         return _run_survey(cfg, Path(args.out) if args.out else default_out_dir(cfg, "survey"), progress)
     out = Path(args.out) if args.out else default_out_dir(cfg, cfg.selector.method)
-    return _run_active(cfg, out, not args.quiet)
+    return _run_active(cfg, out, not args.quiet, args)
 
 
-def _run_active(cfg: ScenarioConfig | None, out: Path, progress: bool) -> int:
+def _run_active(cfg: ScenarioConfig | None, out: Path, progress: bool, args: argparse.Namespace) -> int:
     from flightrecon.mission import Mission
 
     mission = Mission.resume(out, progress=progress) if cfg is None else Mission(cfg, out, progress=progress)
+    mission.live_viewer = args.rerun
     m = mission.run()
     e = m["eval"]
     print(f"{m['frames']} frames, {m['splats']} splats ({m['map_mb']:.1f} MB); evaluation views: PSNR "
