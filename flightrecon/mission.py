@@ -41,6 +41,7 @@ from flightrecon.mapping.ply import save_map
 from flightrecon.planning.distance_field import DistanceField
 from flightrecon.planning.feasibility import CandidateResult, Planner
 from flightrecon.planning.paths import seed_ompl
+from flightrecon.recording import NullRecorder, open_recorder
 from flightrecon.scene.source import scene_from_config
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.flight import Flight, FlightDiverged
@@ -107,6 +108,8 @@ class Mission:
         self.selector = make_selector(cfg)
         self.evaluation = EvaluationSet.for_mission(self.camera, self.truth, self.workspace, float(self.start[2]), cfg)
         self.state = MissionState()
+        self.live_viewer = False  # `fly --rerun`: stream the recording to a viewer as well
+        self.recorder = NullRecorder()
 
     # ------------------------------------------------------------------ run control
     @classmethod
@@ -130,17 +133,20 @@ class Mission:
         if self.state.frame == 0:
             self._take_off()
         bar = _progress(budget, self.state.frame, self.progress)
+        self.recorder = open_recorder(self, live=self.live_viewer)
         while self.state.frame < budget:
             t0 = time.perf_counter()
             row = self._step(last=self.state.frame == budget - 1)
             self.state.wall_time += time.perf_counter() - t0
             self.state.records.append(row)
+            self.recorder.frame_done(row)
             self.state.frame += 1
             self._save_frame_outputs()
             if self.cfg.output.checkpoint:
                 self._save_checkpoint()
             bar.update(row)
         bar.close()
+        self.recorder.close()
         return self._finish()
 
     # ------------------------------------------------------------------ one step
@@ -171,6 +177,7 @@ class Mission:
         row["t_select_update"] = time.perf_counter() - t
         row["n_splats"] = len(self.mapper.map)
         row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(self.mapper, obs)
+        self.recorder.capture(obs)
         if diag.get("note"):
             self._event(diag["note"])
         self.planner.integrate(depth, self.K, T_wc, body_position=body.position)
@@ -210,6 +217,7 @@ class Mission:
         row["recovery"] = ""
         if chosen is None:
             chosen = self._recover(start, results, row)
+        self.recorder.candidates(results, feasible, scores if len(feasible) > 1 else None, chosen)
         t = time.perf_counter()
         before = len(self.flight.log)
         if chosen is not None:
@@ -227,6 +235,7 @@ class Mission:
         row["flight_distance"] = self.state.flight_distance
         row["t_fly_sim"] = time.perf_counter() - t
         flown = self.flight.log.slice_from(before)
+        self.recorder.flight(flown, chosen)
         clear = flown.columns()["clearance"] if len(flown) else np.array([np.nan])
         row["min_clearance"] = float(np.nanmin(clear)) if np.isfinite(clear).any() else math.nan
         row["contacts"] = len(self.flight.log.events)
@@ -266,6 +275,7 @@ class Mission:
     def _event(self, text: str) -> None:
         log.info(text)
         self.state.events.append(text)
+        self.recorder.event(text)
 
     # ------------------------------------------------------------------ outputs
     def _save_frame_outputs(self) -> None:
