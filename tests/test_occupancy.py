@@ -129,3 +129,30 @@ def test_occupancy_from_rendered_depth_marks_surfaces_occupied_and_rays_free():
     cam.close()
     origins, dirs, ranges = (np.concatenate(x) for x in zip(*probes))
     _assert_surfaces_occupied_rays_free(occ, mesh, (origins, dirs, ranges))
+
+
+def test_bad_frames_are_data_errors_and_nan_depth_is_invalid():
+    from flightrecon.errors import DataError
+
+    mesh = _room()
+    w, h = 64, 48
+    K = intrinsics(w, h, 90.0)
+    T = camera_pose([0.0, 0.0, 1.2], 0.0)
+    box = np.array([[-3.3, -2.8, -0.3], [3.3, 2.8, 3.3]])
+    occ = OccupancyMap(box, H)
+    with pytest.raises(DataError, match="HxW depth"):
+        occ.integrate(np.zeros((h, w, 1)), K, T)
+    bad_T = T.copy()
+    bad_T[0, 3] = np.nan
+    with pytest.raises(DataError, match="NaN"):
+        occ.integrate(np.zeros((h, w)), K, bad_T)
+    depth = _raycast_depth(mesh, K, T, w, h)
+    holes = depth.copy()
+    holes[:, : w // 2] = np.nan  # the left half unusable
+    occ.integrate(holes, K, T)
+    ref = OccupancyMap(box, H)
+    half = depth.copy()
+    half[:, : w // 2] = 0.0
+    ref.integrate(half, K, T)
+    np.testing.assert_array_equal(occ.observed, ref.observed)
+    np.testing.assert_array_equal(occ.logodds, ref.logodds)

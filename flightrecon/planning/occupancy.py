@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from flightrecon.errors import DataError
 from flightrecon.geometry import backproject_depth, invert_pose
 from flightrecon.planning.distance_field import DistanceField, grid_for_bounds
 
@@ -36,8 +37,16 @@ class OccupancyMap:
         return np.stack([self.origin, self.origin + np.array(self.shape) * self.voxel_size])
 
     def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> None:
-        """Add one z-depth frame (meters, 0 invalid) seen from camera pose T_wc (OpenCV axes)."""
+        """Add one z-depth frame (meters, 0 invalid) seen from camera pose T_wc (OpenCV axes).
+
+        Non-finite depths count as invalid; a frame of the wrong shape or a non-finite pose is a
+        DataError."""
         depth = np.asarray(depth, np.float32)
+        if depth.ndim != 2 or np.asarray(K).shape != (3, 3) or np.asarray(T_wc).shape != (4, 4):
+            raise DataError(f"occupancy update needs an HxW depth, a 3x3 K and a 4x4 pose; got shapes "
+                            f"{depth.shape}, {np.asarray(K).shape}, {np.asarray(T_wc).shape}")
+        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(T_wc))):
+            raise DataError("occupancy update: the camera pose or intrinsics hold NaN or infinity")
         h = self.voxel_size
         pts, valid = backproject_depth(depth, K, T_wc)
         hit = np.zeros(self.shape, bool)
