@@ -27,7 +27,7 @@ from flightrecon.control.trajectory import FlatState
 from flightrecon.planning.distance_field import DistanceField
 from flightrecon.planning.library import ViewpointLibrary, in_bounds, load_library
 from flightrecon.planning.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
-from flightrecon.planning.paths import plan_path, seed_ompl
+from flightrecon.planning.paths import plan_path, search_margin, seed_ompl
 from flightrecon.planning.timing import JerkTrajectory, Limits, evaluate_batch, time_path, unwrap_yaws
 
 REASONS = ("feasible", "out_of_bounds", "in_obstacle", "unknown_space", "clearance", "no_path",
@@ -185,8 +185,13 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
     times.straight = time.perf_counter() - t0
     # 2. OMPL around obstacles for the rest.
     t0 = time.perf_counter()
+    need = settings.required_clearance + search_margin(field)
+    start_ok = field.distance(p0[None])[0] >= need
     for i in retry:
         r = results[i]
+        if not start_ok or d_target[i] < need:
+            r.reason = "clearance"  # too tight at either end to search a detour
+            continue
         times.n_ompl += 1
         path = plan_path(field, p0, r.position, settings.required_clearance, workspace,
                          settings.ompl_time_limit)

@@ -37,6 +37,12 @@ def seed_ompl(seed: int) -> None:
     ou.setLogLevel(ou.LogLevel.LOG_ERROR)
 
 
+def search_margin(field: DistanceField) -> float:
+    """Clearance added to the requirement for states a quarter voxel apart: the trilinear field is
+    sqrt(3)-Lipschitz at worst, so the requirement then holds between them too."""
+    return math.sqrt(3) * (field.voxel_size / 4) / 2
+
+
 def plan_path(field: DistanceField, start: np.ndarray, goal: np.ndarray, required: float,
               bounds: np.ndarray, time_limit: float) -> np.ndarray | None:
     """Collision-free, simplified waypoints (W, 3) from start to goal, or None if none was found.
@@ -45,7 +51,7 @@ def plan_path(field: DistanceField, start: np.ndarray, goal: np.ndarray, require
     ob, og, _ = _ompl()
     b = np.asarray(bounds, float)
     step = field.voxel_size / 4
-    need = required + math.sqrt(3) * step / 2  # trilinear field is sqrt(3)-Lipschitz at worst
+    need = required + search_margin(field)
     # All OMPL objects live in this frame only: nanobind then frees them before exit (no leak noise).
     space = ob.RealVectorStateSpace(3)
     rb = ob.RealVectorBounds(3)
