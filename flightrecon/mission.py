@@ -25,7 +25,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import mujoco
 import numpy as np
 
 from flightrecon.active.selectors import Observation, make_selector
@@ -45,7 +44,7 @@ from flightrecon.recording import NullRecorder, open_recorder
 from flightrecon.scene.source import scene_from_config
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.flight import Flight, FlightDiverged
-from flightrecon.sim.quadrotor import CAMERA, camera_offset
+from flightrecon.sim.quadrotor import camera_offset
 from flightrecon.sim.safety import ClearanceMonitor
 from flightrecon.sim.world import build_world
 
@@ -161,8 +160,7 @@ class Mission:
         cfg = self.cfg
         row: dict = {"frame": self.state.frame}
         t = time.perf_counter()
-        rgb, depth, T_true = self.camera.render_named(CAMERA)
-        T_wc = self.flight.estimated_camera_pose(T_true)
+        rgb, depth, T_wc, _ = self.flight.capture(self.camera)
         obs = Observation(self.state.frame, rgb, depth, self.K, T_wc)
         body = self.flight.state
         self.state.visited.append((body.position.copy(), float(body.yaw)))
@@ -309,15 +307,8 @@ class Mission:
 
     # ------------------------------------------------------------------ checkpoints
     def _save_checkpoint(self) -> None:
-        m, d = self.world.model, self.world.data
-        spec = mujoco.mjtState.mjSTATE_INTEGRATION
-        sim = np.empty(mujoco.mj_stateSize(m, spec))
-        mujoco.mj_getState(m, d, sim, spec)
-        payload = {
-            "sim": sim, "flight": {"last_reference": self.flight.last_reference, "rng": self.flight._rng,
-                                   "log": self.flight.log, "controller": self.flight.controller},
-            "mapper": self.mapper, "planner": self.planner, "selector": self.selector, "mission": self.state,
-        }
+        payload = {"flight": self.flight.get_state(), "mapper": self.mapper, "planner": self.planner,
+                   "selector": self.selector, "mission": self.state}
         with atomic_path(self.run_dir / CHECKPOINT) as tmp:
             with open(tmp, "wb") as f:
                 pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
@@ -328,12 +319,7 @@ class Mission:
                 payload = pickle.load(f)
         except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
             raise FlightReconError(f"checkpoint {path} cannot be read ({exc}); delete it to restart the run") from None
-        m, d = self.world.model, self.world.data
-        mujoco.mj_setState(m, d, payload["sim"], mujoco.mjtState.mjSTATE_INTEGRATION)
-        mujoco.mj_forward(m, d)
-        fl = payload["flight"]
-        self.flight.last_reference, self.flight._rng = fl["last_reference"], fl["rng"]
-        self.flight.log, self.flight.controller = fl["log"], fl["controller"]
+        self.flight.set_state(payload["flight"])
         self.mapper, self.planner, self.selector = payload["mapper"], payload["planner"], payload["selector"]
         self.state = payload["mission"]
 
