@@ -232,3 +232,36 @@ def test_limit_violations_are_rejected_as_limits():
     fast = FlatState(START, np.array([-1.6, 0.0, 0.0]), np.zeros(3), 0.0, 0.0)
     (r2,) = planner2.check(fast, np.array([[-1.5, 0.5, 1.2]]), np.zeros(1))
     assert r2.reason == "limits"
+
+
+def test_sealed_goals_are_pruned_after_one_failed_search():
+    from flightrecon.planning.paths import ReachableSpace, plan_path, search_margin
+
+    mesh = _scene()
+    pocket = trimesh.creation.box(extents=[1.4, 1.4, 1.4])
+    pocket.apply_translation([2.0, -1.5, 1.2])
+    pocket.invert()
+    cfg = load_config(None, ["planner.use_ground_truth=true"])
+    planner = Planner(cfg, WORKSPACE, trimesh.util.concatenate([mesh, pocket]))  # no free seed
+    start = FlatState(START, np.zeros(3), np.zeros(3), 0.0, 0.0)
+    goals = np.array([[2.0, -1.5, 1.2], [2.1, -1.4, 1.1], [1.9, -1.6, 1.3], [1.3, 0.2, 1.2]])
+    res = planner.check(start, goals, np.zeros(4))
+    assert [r.reason for r in res] == ["no_path", "no_path", "no_path", "feasible"]
+    assert res[3].used_ompl
+    assert planner.times.n_ompl == 2  # the first sealed goal and the detour; the rest pruned
+    # The components agree with geometry and with OMPL: connected iff outside the sealed pocket.
+    field = planner.field
+    required = cfg.drone.body_radius + cfg.planner.safety_margin
+    need = required + search_margin(field)
+    reach = ReachableSpace(field, need)
+    rng = np.random.default_rng(2)
+    goals = np.concatenate([rng.uniform([-2.5, -2.0, 0.5], [2.5, 2.0, 2.5], (40, 3)),
+                            rng.uniform([1.8, -1.7, 1.0], [2.2, -1.3, 1.4], (4, 3))])
+    goals = goals[field.distance(goals) >= need]
+    in_pocket = np.all(np.abs(goals - [2.0, -1.5, 1.2]) < 0.7, axis=1)
+    assert 0 < in_pocket.sum() < len(goals)
+    for g, sealed in zip(goals, in_pocket):
+        assert reach.may_connect(START, g) == (not sealed)
+    for g in goals[in_pocket][:2].tolist() + goals[~in_pocket][:6].tolist():
+        found = plan_path(field, START, np.array(g), required, WORKSPACE, 0.5) is not None
+        assert found == reach.may_connect(START, np.array(g))

@@ -27,7 +27,7 @@ from flightrecon.control.trajectory import FlatState
 from flightrecon.planning.distance_field import DistanceField
 from flightrecon.planning.library import ViewpointLibrary, in_bounds, load_library
 from flightrecon.planning.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
-from flightrecon.planning.paths import plan_path, search_margin, seed_ompl
+from flightrecon.planning.paths import ReachableSpace, plan_path, search_margin, seed_ompl
 from flightrecon.planning.timing import JerkTrajectory, Limits, evaluate_batch, time_path, unwrap_yaws
 
 REASONS = ("feasible", "out_of_bounds", "in_obstacle", "unknown_space", "clearance", "no_path",
@@ -187,16 +187,21 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
     t0 = time.perf_counter()
     need = settings.required_clearance + search_margin(field)
     start_ok = field.distance(p0[None])[0] >= need
+    reach: ReachableSpace | None = None  # built after the first failed search, then reused
     for i in retry:
         r = results[i]
         if not start_ok or d_target[i] < need:
             r.reason = "clearance"  # too tight at either end to search a detour
+            continue
+        if reach is not None and not reach.may_connect(p0, r.position):
+            r.reason = "no_path"
             continue
         times.n_ompl += 1
         path = plan_path(field, p0, r.position, settings.required_clearance, workspace,
                          settings.ompl_time_limit)
         if path is None:
             r.reason = "no_path"
+            reach = reach or ReachableSpace(field, need)
             continue
         seg_len = np.linalg.norm(np.diff(path, axis=0), axis=1)
         frac = np.concatenate([[0.0], np.cumsum(seg_len)]) / max(seg_len.sum(), 1e-9)

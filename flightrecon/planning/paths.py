@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy import ndimage
 
 from flightrecon.planning.distance_field import DistanceField
 
@@ -97,3 +98,30 @@ def plan_path(field: DistanceField, start: np.ndarray, goal: np.ndarray, require
     ss.clear()
     out[0], out[-1] = start, goal
     return out
+
+
+class ReachableSpace:
+    """Connected components of the grid centers whose clearance is at least `need`, built once and
+    reused across one step's candidates to rule out hopeless searches without waiting out OMPL.
+
+    Exact for states (not a heuristic): the trilinear field at a point is a convex combination of
+    its cell's 8 corners, so along any continuous path with clearance >= need every cell crossed has
+    such a corner on its entry and exit faces, and those corners are 26-neighbours. Hence if no
+    corner of the start's cell shares a 26-connected component with a corner of the goal's cell,
+    no valid path exists."""
+
+    def __init__(self, field: DistanceField, need: float):
+        self.field = field
+        self.labels, _ = ndimage.label(field.values >= need, structure=np.ones((3, 3, 3), bool))
+
+    def _corner_labels(self, point: np.ndarray) -> set[int]:
+        f = self.field
+        g = (np.asarray(point, float) - f.origin) / f.voxel_size - 0.5
+        i0 = np.floor(g).astype(int)
+        axes = [np.clip([i0[k], i0[k] + 1], 0, f.shape[k] - 1) for k in range(3)]
+        block = self.labels[np.ix_(*axes)]
+        return set(np.unique(block[block > 0]).tolist())
+
+    def may_connect(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """False only when no path with the required clearance can join a and b."""
+        return bool(self._corner_labels(a) & self._corner_labels(b))
