@@ -1,0 +1,97 @@
+"""Closed-loop active flights end to end: real MuJoCo, OMPL, ruckig and the C++ rasterizer.
+
+Tiny settings (80x60 camera, few iterations) keep each flight to seconds of compute on 2 cores.
+"""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from flightrecon.config import load_config
+from flightrecon.errors import FlightReconError
+from flightrecon.mapping.ply import load_map
+from flightrecon.mission import Mission
+
+TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
+        "mapper.k_new=8", "mapper.k_replay=4", "evaluation.views=3", "evaluation.every=1"]
+
+
+def _rows(run_dir: Path) -> list[dict]:
+    with open(run_dir / "frames.csv") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.slow
+def test_short_flight_improves_and_writes_outputs(tmp_path):
+    cfg = load_config("demo", TINY + ["budget.frames=6", "budget.initial_views=3"])
+    metrics = Mission(cfg, tmp_path, progress=False).run()
+    for name in ("config.toml", "frames.csv", "map.ply", "metrics.json", "trajectory.csv", "events.log",
+                 "checkpoint.pkl"):
+        assert (tmp_path / name).is_file(), name
+    rows = _rows(tmp_path)
+    assert [int(r["frame"]) for r in rows] == list(range(6))
+    psnr = [float(r["eval_psnr"]) for r in rows]
+    dl1 = [float(r["eval_depth_l1_cm"]) for r in rows]
+    assert psnr[-1] > psnr[0] + 1.0, psnr
+    assert dl1[-1] < dl1[0], dl1
+    assert metrics["contacts"] == 0
+    assert int(rows[-1]["n_splats"]) == metrics["splats"] == len(load_map(tmp_path / "map.ply"))
+    selected = [r for r in rows[2:-1] if r["n_feasible"] and int(r["n_feasible"]) > 1]
+    assert selected, "no step had a choice between candidates"
+    assert all(np.isfinite(float(r["chosen_score"])) for r in selected)
+
+
+def _fly(args: list[str], **kw) -> subprocess.Popen:
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    return subprocess.Popen([sys.executable, "-m", "flightrecon.cli", "fly", *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **kw)
+
+
+@pytest.mark.slow
+def test_kill_and_resume_equals_uninterrupted(tmp_path):
+    sets = [a for s in TINY + ["budget.frames=5", "budget.initial_views=2", "evaluation.every=0"]
+            for a in ("--set", s)]
+    whole, broken = tmp_path / "whole", tmp_path / "broken"
+    p = _fly(["demo", "--quiet", "--out", str(whole), *sets])
+    assert p.wait(timeout=600) == 0, p.stdout.read()
+    p = _fly(["demo", "--quiet", "--out", str(broken), *sets])
+    deadline = time.time() + 600
+    while time.time() < deadline:  # kill it as soon as two frames are checkpointed
+        if (broken / "frames.csv").is_file() and len(_rows(broken)) >= 2 and p.poll() is None:
+            p.send_signal(signal.SIGKILL)
+            break
+        if p.poll() is not None:
+            break
+        time.sleep(0.05)
+    p.wait(timeout=60)
+    assert p.returncode == -signal.SIGKILL, "the run finished before it could be killed"
+    assert not (broken / "metrics.json").exists()
+    p = _fly(["--resume", str(broken), "--quiet"])
+    assert p.wait(timeout=600) == 0, p.stdout.read()
+    a, b = load_map(whole / "map.ply"), load_map(broken / "map.ply")
+    for name in ("means", "quats", "log_scales", "opacity_logits", "colors", "reliability"):
+        assert np.array_equal(a[name].numpy(), b[name].numpy()), name
+    ma, mb = (json.loads((d / "metrics.json").read_text()) for d in (whole, broken))
+    assert ma["eval"] == mb["eval"] and ma["flight_distance_m"] == mb["flight_distance_m"]
+    keys = ("frame", "sim_time", "n_splats", "n_feasible", "chosen_score", "flight_distance")
+    assert [[r[k] for k in keys] for r in _rows(whole)] == [[r[k] for k in keys] for r in _rows(broken)]
+
+
+def test_resume_of_a_folder_without_a_run_names_it(tmp_path):
+    with pytest.raises(FlightReconError, match="config.toml"):
+        Mission.resume(tmp_path)
+
+
+def test_unknown_method_names_the_key():
+    from flightrecon.active.selectors import make_selector
+
+    with pytest.raises(FlightReconError, match="selector.method"):
+        make_selector(load_config("demo", ["selector.method=nope"]))
