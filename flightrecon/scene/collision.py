@@ -2,7 +2,9 @@
 
 The surface is voxelized (every triangle sampled finer than the voxel), then occupied voxels are
 merged into axis-aligned boxes: runs along x, runs of equal runs along y, then along z. A wall or
-floor becomes one box, furniture a few dozen; every box lies within one voxel of the surface.
+floor becomes one box, furniture a few dozen; boxes reach at most 1.25 voxels beyond the surface.
+Boxes are padded by the sample spacing, so every surface point is inside one.
+The box count is bounded (coarser voxels) so that physics steps stay fast on sloped scans.
 """
 
 from __future__ import annotations
@@ -14,8 +16,14 @@ import numpy as np
 from flightrecon.scene.types import Scene
 
 
+SAMPLE_SPACING = 0.25  # surface samples per voxel edge: every surface point is this close (x pitch)
+
+
 def surface_voxels(scene: Scene, pitch: float) -> tuple[np.ndarray, np.ndarray]:
-    """Boolean occupancy grid (X, Y, Z) of voxels touched by the surface, and its origin corner."""
+    """Boolean occupancy grid (X, Y, Z) of voxels holding surface samples, and its origin corner.
+
+    Samples form a barycentric grid on every triangle with spacing <= SAMPLE_SPACING * pitch, so
+    each surface point lies within that distance of an occupied voxel."""
     v = np.asarray(scene.vertices, np.float64)
     f = np.asarray(scene.faces, np.int64)
     origin = v.min(axis=0) - pitch
@@ -24,7 +32,7 @@ def surface_voxels(scene: Scene, pitch: float) -> tuple[np.ndarray, np.ndarray]:
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     longest = np.max(np.stack([np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
                                np.linalg.norm(a - c, axis=1)]), axis=0)
-    steps = np.maximum(1, np.ceil(longest / (0.5 * pitch))).astype(np.int64)
+    steps = np.maximum(1, np.ceil(longest / (SAMPLE_SPACING * pitch))).astype(np.int64)
     for n in np.unique(steps):
         sel = steps == n
         i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
@@ -71,12 +79,23 @@ def _merge_consecutive(keys: np.ndarray, coord: np.ndarray) -> np.ndarray:
     return np.column_stack([k[starts], c[starts], c[ends] + 1])
 
 
-def collision_boxes(scene: Scene, pitch: float = 0.05) -> np.ndarray:
-    """World-frame boxes (N, 6): center xyz, half sizes xyz; together they cover the surface."""
+MAX_BOXES = 5000  # MuJoCo updates every geom each physics step: ~0.05 ms per 1000 boxes
+
+
+def collision_boxes(scene: Scene, pitch: float = 0.05, max_boxes: int = MAX_BOXES) -> tuple[np.ndarray, float]:
+    """World-frame boxes (N, 6): center xyz, half sizes xyz, covering the surface; and the pitch used.
+
+    Sloped or curved surfaces of a scan merge poorly into axis-aligned boxes; while there are more
+    than `max_boxes`, the voxel size doubles (coarser, still covering the surface)."""
     if not (math.isfinite(pitch) and pitch > 0):
         raise ValueError(f"collision voxel pitch must be positive, got {pitch}")
-    occ, origin = surface_voxels(scene, pitch)
-    b = merge_boxes(occ).astype(np.float64)
-    lo = origin + b[:, :3] * pitch
-    hi = origin + b[:, 3:] * pitch
-    return np.hstack([(lo + hi) / 2, (hi - lo) / 2])
+    while True:
+        occ, origin = surface_voxels(scene, pitch)
+        b = merge_boxes(occ).astype(np.float64)
+        if len(b) <= max_boxes or max(occ.shape) <= 4:
+            break
+        pitch *= 2.0
+    pad = SAMPLE_SPACING * pitch  # surface between samples may leave the sampled voxels by this much
+    lo = origin + b[:, :3] * pitch - pad
+    hi = origin + b[:, 3:] * pitch + pad
+    return np.hstack([(lo + hi) / 2, (hi - lo) / 2]), pitch

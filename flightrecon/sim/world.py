@@ -22,7 +22,7 @@ from flightrecon.scene.collision import collision_boxes
 from flightrecon.scene.source import cache_root
 from flightrecon.scene.types import Scene
 
-BAKE_VERSION = 2  # bump when baking changes, so cached assets are rebuilt
+BAKE_VERSION = 3  # bump when baking changes, so cached assets are rebuilt
 SCENE_MESH = "scene_mesh"
 SCENE_GEOM = "scene_visual"
 COLLISION_GROUP = 4  # hidden by MuJoCo's default visual options, like the drone's group 3
@@ -37,6 +37,7 @@ class BakedScene:
 
     atlas: TextureAtlas
     boxes: np.ndarray  # (N, 6)
+    collision_pitch: float  # voxel size the boxes were built at (may exceed the asked one)
     key: str
     from_cache: bool = False
 
@@ -65,15 +66,16 @@ def bake_scene(scene: Scene, cache_dir: str = "", collision_voxel: float = 0.05)
         try:
             with np.load(path) as z:
                 atlas = TextureAtlas(z["image"], z["texcoord"], z["face_texcoord"], int(z["max_mip_level"]))
-                return BakedScene(atlas, z["boxes"], key, from_cache=True)
+                return BakedScene(atlas, z["boxes"], float(z["collision_pitch"]), key, from_cache=True)
         except (OSError, ValueError, KeyError):
             pass  # a damaged cache entry is rebuilt below
-    baked = BakedScene(bake_atlas(scene), collision_boxes(scene, collision_voxel), key)
+    boxes, pitch = collision_boxes(scene, collision_voxel)
+    baked = BakedScene(bake_atlas(scene), boxes, pitch, key)
     try:
         with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez(fh, image=baked.atlas.image, texcoord=baked.atlas.texcoord,
                      face_texcoord=baked.atlas.face_texcoord, max_mip_level=baked.atlas.max_mip_level,
-                     boxes=baked.boxes)
+                     boxes=baked.boxes, collision_pitch=baked.collision_pitch)
     except OSError:
         pass  # a read-only cache only costs time
     return baked
