@@ -234,7 +234,7 @@ def test_limit_violations_are_rejected_as_limits():
     assert r2.reason == "limits"
 
 
-def test_sealed_goals_are_pruned_after_one_failed_search():
+def test_sealed_goals_are_pruned_without_searching():
     from flightrecon.planning.paths import ReachableSpace, plan_path, search_margin
 
     mesh = _scene()
@@ -248,7 +248,7 @@ def test_sealed_goals_are_pruned_after_one_failed_search():
     res = planner.check(start, goals, np.zeros(4))
     assert [r.reason for r in res] == ["no_path", "no_path", "no_path", "feasible"]
     assert res[3].used_ompl
-    assert planner.times.n_ompl == 2  # the first sealed goal and the detour; the rest pruned
+    assert planner.times.n_ompl == 1  # only the detour is searched; the sealed goals are pruned
     # The components agree with geometry and with OMPL: connected iff outside the sealed pocket.
     field = planner.field
     required = cfg.drone.body_radius + cfg.planner.safety_margin
@@ -265,3 +265,27 @@ def test_sealed_goals_are_pruned_after_one_failed_search():
     for g in goals[in_pocket][:2].tolist() + goals[~in_pocket][:6].tolist():
         found = plan_path(field, START, np.array(g), required, WORKSPACE, 0.5) is not None
         assert found == reach.may_connect(START, np.array(g))
+
+
+def test_searched_paths_timed_rest_to_rest_always_pass_the_check(setup):
+    from flightrecon.planning.feasibility import check_trajectories
+    from flightrecon.planning.paths import plan_path, seed_ompl
+    from flightrecon.planning.timing import time_path, unwrap_yaws
+
+    mesh, cfg, planner = setup
+    seed_ompl(11)
+    required = planner.settings.required_clearance
+    rng = np.random.default_rng(5)
+    goals = rng.uniform([0.7, -2.0, 0.6], [2.5, 2.0, 2.4], (30, 3))
+    goals = goals[planner.field.distance(goals) >= required + 0.05][:8]
+    found = 0
+    for g in goals:
+        path = plan_path(planner.field, START, g, required, WORKSPACE, 2.0, 5000)
+        if path is None:
+            continue
+        found += 1
+        tr = time_path(path, unwrap_yaws(0.0, 1.0, np.linspace(0, 1, len(path))), planner.settings.limits,
+                       stop_at_waypoints=True)
+        (why,), _, _ = check_trajectories([tr], planner.field, planner.settings, START)
+        assert why == "feasible"
+    assert found >= 4

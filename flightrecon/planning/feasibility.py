@@ -10,7 +10,8 @@ no_path (OMPL found none in its time limit), limits (velocity, acceleration, jer
 tilt exceeded), too_long (duration over the maximum).
 
 Straight legs are tried first for all candidates at once; only the ones whose straight trajectory
-loses clearance go to OMPL. Every trajectory is sampled densely (a quarter voxel of travel between
+loses clearance go to OMPL, and only when the connected components of the clearance grid (built
+once per check) join start and goal. Every trajectory is sampled densely (a quarter voxel of travel between
 samples) and its clearance required with a Lipschitz margin, so it holds between samples too.
 """
 
@@ -63,6 +64,7 @@ class PlanningSettings:
     max_tilt: float
     max_duration: float
     ompl_time_limit: float
+    ompl_iterations: int
 
     @classmethod
     def from_config(cls, cfg: ScenarioConfig) -> "PlanningSettings":
@@ -70,7 +72,7 @@ class PlanningSettings:
         limits = Limits(p.max_vel, p.max_acc, p.max_jerk, math.radians(p.max_yaw_rate_deg),
                         math.radians(p.max_yaw_acc_deg), math.radians(p.max_yaw_jerk_deg))
         return cls(limits, d.body_radius + p.safety_margin, d.body_radius, math.radians(d.max_tilt_deg),
-                   p.max_duration, p.ompl_time_limit)
+                   p.max_duration, p.ompl_time_limit, p.ompl_iterations)
 
 
 @dataclass
@@ -187,21 +189,21 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
     t0 = time.perf_counter()
     need = settings.required_clearance + search_margin(field)
     start_ok = field.distance(p0[None])[0] >= need
-    reach: ReachableSpace | None = None  # built after the first failed search, then reused
+    reach: ReachableSpace | None = None  # built for the step's first search, reused by the others
     for i in retry:
         r = results[i]
         if not start_ok or d_target[i] < need:
             r.reason = "clearance"  # too tight at either end to search a detour
             continue
-        if reach is not None and not reach.may_connect(p0, r.position):
-            r.reason = "no_path"
+        reach = reach or ReachableSpace(field, need)
+        if not reach.may_connect(p0, r.position):
+            r.reason = "no_path"  # sealed off: no search could succeed
             continue
         times.n_ompl += 1
         path = plan_path(field, p0, r.position, settings.required_clearance, workspace,
-                         settings.ompl_time_limit)
+                         settings.ompl_time_limit, settings.ompl_iterations)
         if path is None:
             r.reason = "no_path"
-            reach = reach or ReachableSpace(field, need)
             continue
         seg_len = np.linalg.norm(np.diff(path, axis=0), axis=1)
         frac = np.concatenate([[0.0], np.cumsum(seg_len)]) / max(seg_len.sum(), 1e-9)
