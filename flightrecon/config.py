@@ -102,7 +102,9 @@ class PlannerConfig:
     max_duration: float = _f(15.0, 0.5, 300.0, doc="s; longer trajectories are rejected")
     use_ground_truth: bool = _f(False, doc="plan on the true scene instead of the online occupancy map")
     library: str = _f("default", doc="'default' (198 candidates) or a path to a TOML candidate list")
-    ompl_time_limit: float = _f(0.05, 0.001, 10.0, doc="s per OMPL query")
+    ompl_iterations: int = _f(300, 1, 10_000_000, doc="RRT-Connect iterations per query (typical detours "
+                              "need under 50); an iteration cap keeps seeded plans independent of machine load")
+    ompl_time_limit: float = _f(1.0, 0.001, 60.0, doc="s; safety cap per OMPL query")
     hover_free_radius: float = _f(0.6, 0.0, 5.0, doc="m; never-seen space this close to where the drone "
                                   "hovered is assumed free (the camera's blind cones above and below)")
 
