@@ -17,6 +17,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
+#include <string>
 #include <vector>
 
 namespace {
@@ -47,6 +49,18 @@ struct Bins {
   std::vector<int64_t> offsets;  // [tiles + 1]
   std::vector<int32_t> ids;      // splat ids, per tile sorted by depth
 };
+
+// Phase timings (seconds) and blend work of the last forward or backward call, for profiling.
+struct Stats {
+  double project = 0, bin = 0, sort = 0, blend = 0, reduce = 0, chain = 0;
+  int64_t evals = 0, isects = 0;
+  bool by_camera = false;  // timings are then summed over threads (thread-seconds), not wall time
+  void add(const Stats& o) {
+    project += o.project; bin += o.bin; sort += o.sort; blend += o.blend; reduce += o.reduce;
+    chain += o.chain; evals += o.evals; isects += o.isects;
+  }
+};
+Stats g_stats;
 
 struct Camera {
   double R[9], t[3], K[9];
@@ -121,8 +135,9 @@ void project_camera(const S* means, const S* U, const S* V, const S* n, int64_t 
 }
 
 template <typename S>
-Bins bin_and_sort(const Projected<S>& P, int64_t N, const Settings& st) {
+Bins bin_and_sort(const Projected<S>& P, int64_t N, const Settings& st, Stats& stats) {
   const int tiles = st.tiles_x * st.tiles_y;
+  const double t0 = omp_get_wtime();
   Bins b;
   b.offsets.assign(tiles + 1, 0);
   for (int64_t i = 0; i < N; ++i) {
@@ -141,10 +156,14 @@ Bins bin_and_sort(const Projected<S>& P, int64_t N, const Settings& st) {
       for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx) b.ids[fill[ty * st.tiles_x + tx]++] = int32_t(i);
   }
   const S* depth = P.depth.data();
+  const double t1 = omp_get_wtime();
 #pragma omp parallel for schedule(dynamic, 4)
   for (int t = 0; t < tiles; ++t)
     std::stable_sort(b.ids.begin() + b.offsets[t], b.ids.begin() + b.offsets[t + 1],
                      [depth](int32_t a, int32_t c) { return depth[a] < depth[c]; });
+  stats.bin += t1 - t0;
+  stats.sort += omp_get_wtime() - t1;
+  stats.isects += int64_t(b.ids.size());
   return b;
 }
 
@@ -155,20 +174,41 @@ struct Hit {
   bool use3, ok;
 };
 
+// Per pixel row: l = y T_w - T_v is constant along a row, so q = k x l = x (T_w x l) - (T_u x l)
+// is affine in x: three FMAs per pixel instead of a cross product.
 template <typename S>
-inline Hit<S> hit(const S* M, S mx, S my, S o, S x, S y, S near) {
+struct Row {
+  S l0, l1, l2, a0, a1, a2, b0, b1, b2, dy2;
+};
+
+template <typename S>
+inline Row<S> row_of(const S* M, S y, S my) {
+  Row<S> r;
+  r.l0 = y * M[6] - M[3];
+  r.l1 = y * M[7] - M[4];
+  r.l2 = y * M[8] - M[5];
+  r.a0 = M[7] * r.l2 - M[8] * r.l1;
+  r.a1 = M[8] * r.l0 - M[6] * r.l2;
+  r.a2 = M[6] * r.l1 - M[7] * r.l0;
+  r.b0 = M[1] * r.l2 - M[2] * r.l1;
+  r.b1 = M[2] * r.l0 - M[0] * r.l2;
+  r.b2 = M[0] * r.l1 - M[1] * r.l0;
+  r.dy2 = (y - my) * (y - my);
+  return r;
+}
+
+template <typename S>
+inline Hit<S> hit(const S* M, const Row<S>& r, S mx, S o, S x, S near) {
   Hit<S> h;
-  const S k0 = x * M[6] - M[0], k1 = x * M[7] - M[1], k2 = x * M[8] - M[2];
-  const S l0 = y * M[6] - M[3], l1 = y * M[7] - M[4], l2 = y * M[8] - M[5];
-  const S q0 = k1 * l2 - k2 * l1, q1 = k2 * l0 - k0 * l2, q2 = k0 * l1 - k1 * l0;
+  const S q0 = x * r.a0 - r.b0, q1 = x * r.a1 - r.b1, q2 = x * r.a2 - r.b2;
   const bool nz = q2 != 0;
   const S inv = S(1) / (nz ? q2 : S(1));
   h.q2 = q2;
   h.u = q0 * inv;
   h.v = q1 * inv;
   h.rho3 = std::min(h.u * h.u + h.v * h.v, S(1e4));
-  const S dx = x - mx, dy = y - my;
-  h.rho2 = S(FILTER_INV_SQ) * (dx * dx + dy * dy);
+  const S dx = x - mx;
+  h.rho2 = S(FILTER_INV_SQ) * (dx * dx + r.dy2);
   // Where the low-pass filter wins the hit is not on the splat: use the center depth (2DGS).
   h.use3 = h.rho3 <= h.rho2;
   h.z = h.use3 ? M[6] * h.u + M[7] * h.v + M[8] : M[8];
@@ -176,6 +216,30 @@ inline Hit<S> hit(const S* M, S mx, S my, S o, S x, S y, S near) {
   h.a = std::min(S(ALPHA_MAX), o * h.g);
   h.ok = nz && h.z >= near && h.a >= S(ALPHA_MIN);
   return h;
+}
+
+// Packs the per-splat data of tile entries [e0, e1) contiguously (ray transform, means2d, opacity,
+// normal, the tile's pixel range, features), so the blend loops read sequential memory instead of
+// chasing splat ids through N-sized arrays; the gather's independent loads overlap in the CPU.
+constexpr int REC = 17;  // record length before the features
+template <typename S>
+void gather(const Projected<S>& P, const Bins& B, const S* opac, const S* feat, int D, int ty,
+            int64_t e0, int64_t e1, std::vector<S>& rec) {
+  const int R = REC + D;
+  rec.resize(size_t(e1 - e0) * R);
+  for (int64_t e = e0; e < e1; ++e) {
+    const int i = B.ids[e];
+    S* q = &rec[size_t(e - e0) * R];
+    for (int k = 0; k < 9; ++k) q[k] = P.M[9 * size_t(i) + k];
+    q[9] = P.m2d[2 * size_t(i)];
+    q[10] = P.m2d[2 * size_t(i) + 1];
+    q[11] = opac[i];
+    for (int k = 0; k < 3; ++k) q[12 + k] = P.nrm[3 * size_t(i) + k];
+    const int* r = &P.rect[4 * size_t(i)];
+    q[15] = S(std::max(r[1] - ty * TS, 0) * TS);
+    q[16] = S((std::min(r[3] - ty * TS, TS - 1) + 1) * TS);
+    for (int d = 0; d < D; ++d) q[REC + d] = feat[int64_t(i) * D + d];
+  }
 }
 
 struct Flags {
@@ -189,12 +253,14 @@ struct FwdOut {
 };
 
 template <typename S>
-void forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac, const S* feat,
+int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac, const S* feat,
                   int D, const Settings& st, const Flags& fl, const FwdOut<S>& out) {
   const int tx = tile % st.tiles_x, ty = tile / st.tiles_x;
   alignas(64) S px[TP], py[TP], T[TP], act[TP], w[TP], zz[TP];
   alignas(64) S accA[TP], accZ[TP], accM[TP], accM2[TP], medz[TP];
   alignas(64) int32_t last[TP], medj[TP];
+  bool row_alive[TS];
+  for (int r = 0; r < TS; ++r) row_alive[r] = ty * TS + r < st.H;
   std::vector<S> accF(size_t(D) * TP, S(0)), accN(fl.normal ? 3 * TP : 0, S(0));
   for (int p = 0; p < TP; ++p) {
     const int x = tx * TS + (p % TS), y = ty * TS + p / TS;
@@ -208,22 +274,32 @@ void forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac,
   }
   const S near = S(st.near), mscale = S(st.far / (st.far - st.near));
   const int64_t b0 = B.offsets[tile], b1 = B.offsets[tile + 1];
+  int64_t evals = 0;
+  constexpr int CHUNK = 32;
+  const int R = REC + D;
+  std::vector<S> rec;
   for (int64_t jj = b0; jj < b1; ++jj) {
-    if (((jj - b0) & 15) == 0 && jj > b0) {
-      S alive = 0;
-      for (int p = 0; p < TP; ++p) alive += act[p];
-      if (alive == 0) break;
+    if (((jj - b0) % CHUNK) == 0) {
+      if (jj > b0 && std::none_of(row_alive, row_alive + TS, [](bool b) { return b; })) break;
+      gather(P, B, opac, feat, D, ty, jj, std::min(b1, jj + CHUNK), rec);
     }
-    const int i = B.ids[jj];
-    const int* r = &P.rect[4 * i];
-    const int p0 = std::max(r[1] - ty * TS, 0) * TS, p1 = (std::min(r[3] - ty * TS, TS - 1) + 1) * TS;
-    const S* M = &P.M[9 * i];
-    const S mx = P.m2d[2 * i], my = P.m2d[2 * i + 1], o = opac[i];
+    const S* q = &rec[size_t((jj - b0) % CHUNK) * R];
+    const int p0 = int(q[15]), p1 = int(q[16]);
+    const S* M = q;
+    const S mx = q[9], my = q[10], o = q[11];
     const int32_t j = int32_t(jj - b0);
+    evals += p1 - p0;
     int any = 0;
-#pragma omp simd reduction(| : any)
-    for (int p = p0; p < p1; ++p) {
-      const Hit<S> h = hit(M, mx, my, o, px[p], py[p], near);
+    for (int p00 = p0; p00 < p1; p00 += TS) {
+    if (!row_alive[p00 / TS]) {  // every pixel of this row has terminated
+      for (int p = p00; p < p00 + TS; ++p) w[p] = S(0);
+      continue;
+    }
+    const Row<S> rw = row_of(M, py[p00], my);
+    S alive = 0;
+#pragma omp simd reduction(| : any) reduction(+ : alive)
+    for (int p = p00; p < p00 + TS; ++p) {
+      const Hit<S> h = hit(M, rw, mx, o, px[p], near);
       const S testT = T[p] * (S(1) - h.a);
       const bool ok = h.ok && act[p] != 0;
       const bool stop = ok && testT < S(T_MIN);
@@ -239,17 +315,20 @@ void forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac,
       last[p] = blend ? j + 1 : last[p];
       accA[p] += wp;
       any |= int(blend);
+      alive += act[p];
+    }
+    row_alive[p00 / TS] = alive != 0;
     }
     if (!any) continue;
     for (int d = 0; d < D; ++d) {
-      const S f = feat[int64_t(i) * D + d];
+      const S f = q[REC + d];
       S* acc = &accF[size_t(d) * TP];
 #pragma omp simd
       for (int p = p0; p < p1; ++p) acc[p] += w[p] * f;
     }
     if (fl.normal)
       for (int k = 0; k < 3; ++k) {
-        const S nk = P.nrm[3 * i + k];
+        const S nk = q[12 + k];
         S* acc = &accN[size_t(k) * TP];
 #pragma omp simd
         for (int p = p0; p < p1; ++p) acc[p] += w[p] * nk;
@@ -277,6 +356,7 @@ void forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac,
     out.last[q] = last[p];
     out.medj[q] = medj[p];
   }
+  return evals;
 }
 
 Camera camera_of(const torch::Tensor& viewmats, const torch::Tensor& Ks, int64_t c) {
@@ -319,12 +399,19 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
   auto radii = torch::zeros({C, N}, iopt);
   const Settings st = settings_of(W, H, near, far);
   const int tiles = st.tiles_x * st.tiles_y;
-  Projected<S> P(N);
-  for (int64_t c = 0; c < C; ++c) {
-    const Camera cam = camera_of(viewmats, Ks, c);
-    project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), N, cam, st, P);
+  std::vector<Camera> cams;
+  for (int64_t c = 0; c < C; ++c) cams.push_back(camera_of(viewmats, Ks, c));
+  std::vector<Stats> per(C);
+  const S *pm = means.data_ptr<S>(), *pu = U.data_ptr<S>(), *pv = V.data_ptr<S>(), *pn = n.data_ptr<S>();
+  // One camera: project, bin, sort, blend. Its inner parallel loops run serially when called from
+  // the camera-parallel region below (nested parallelism is off), in parallel otherwise.
+  auto one = [&](int64_t c, Projected<S>& P) {
+    Stats& sc = per[c];
+    double t0 = omp_get_wtime();
+    project_camera<S>(pm, pu, pv, pn, N, cams[c], st, P);
+    sc.project += omp_get_wtime() - t0;
     std::copy(P.radii.begin(), P.radii.end(), radii.data_ptr<int32_t>() + c * N);
-    const Bins B = bin_and_sort(P, N, st);
+    const Bins B = bin_and_sort(P, N, st, sc);
     const int64_t HW = H * W;
     FwdOut<S> out{feat_img.data_ptr<S>() + c * HW * D, alpha.data_ptr<S>() + c * HW,
                   fl.normal ? normal.data_ptr<S>() + c * HW * 3 : nullptr,
@@ -333,9 +420,30 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
                   last.data_ptr<int32_t>() + c * HW, medj.data_ptr<int32_t>() + c * HW};
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
     const S* op = opac.data_ptr<S>();
-#pragma omp parallel for schedule(dynamic, 1)
-    for (int t = 0; t < tiles; ++t) forward_tile<S>(t, P, B, op, f, int(D), st, fl, out);
+    t0 = omp_get_wtime();
+    int64_t evals = 0;
+#pragma omp parallel for schedule(dynamic, 1) reduction(+ : evals)
+    for (int t = 0; t < tiles; ++t) evals += forward_tile<S>(t, P, B, op, f, int(D), st, fl, out);
+    sc.blend += omp_get_wtime() - t0;
+    sc.evals += evals;
+  };
+  // Many cameras (view selection): a whole camera per thread, so no per-camera fork/join; each
+  // camera's result is computed by the same code either way, so batched == single calls exactly.
+  const bool by_camera = C > 1 && C >= omp_get_max_threads();
+  if (by_camera) {
+#pragma omp parallel
+    {
+      Projected<S> P(N);
+#pragma omp for schedule(dynamic, 1)
+      for (int64_t c = 0; c < C; ++c) one(c, P);
+    }
+  } else {
+    Projected<S> P(N);
+    for (int64_t c = 0; c < C; ++c) one(c, P);
   }
+  g_stats = Stats();
+  g_stats.by_camera = by_camera;
+  for (const Stats& sc : per) g_stats.add(sc);
   return {feat_img, alpha, normal, zsum, msum, m2sum, median, last, medj, radii};
 }
 
@@ -393,19 +501,23 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
     medj[p] = in.medj[q];
     maxlast = std::max(maxlast, last[p]);
   }
+  int32_t row_last[TS];
+  for (int r = 0; r < TS; ++r) row_last[r] = *std::max_element(last + r * TS, last + (r + 1) * TS);
   const S near = S(st.near), mscale = S(st.far / (st.far - st.near));
   const S mder = S(st.far * st.near / (st.far - st.near));
   const int64_t b0 = B.offsets[tile];
+  std::vector<S> rec;
+  gather(P, B, opac, feat, D, ty, b0, b0 + maxlast, rec);
+  const int R = REC + D;
   for (int32_t j = 0; j < maxlast; ++j) {
     const int64_t jj = b0 + j;
-    const int i = B.ids[jj];
     S* slot = slots + jj * G;
-    const int* r = &P.rect[4 * i];
-    const int p0 = std::max(r[1] - ty * TS, 0) * TS, p1 = (std::min(r[3] - ty * TS, TS - 1) + 1) * TS;
-    const S* M = &P.M[9 * i];
-    const S mx = P.m2d[2 * i], my = P.m2d[2 * i + 1], o = opac[i];
-    const S* f = feat + int64_t(i) * D;
-    const S* nr = &P.nrm[3 * i];
+    const S* q = &rec[size_t(j) * R];
+    const int p0 = int(q[15]), p1 = int(q[16]);
+    const S* M = q;
+    const S mx = q[9], my = q[10], o = q[11];
+    const S* f = q + REC;
+    const S* nr = q + 12;
 #pragma omp simd
     for (int p = p0; p < p1; ++p) s[p] = gA[p];
     for (int d = 0; d < D; ++d) {
@@ -422,9 +534,18 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
         for (int p = p0; p < p1; ++p) s[p] += nk * g[p];
       }
     S dO = 0, o2 = 0, w2 = 0;
+    for (int p00 = p0; p00 < p1; p00 += TS) {
+    if (j >= row_last[p00 / TS]) {  // no pixel of this row blends this splat or any later one
+      for (int p = p00; p < p00 + TS; ++p) {
+        w[p] = S(0);
+        for (int e = 0; e < NG; ++e) gg[e][p] = S(0);
+      }
+      continue;
+    }
+    const Row<S> rw = row_of(M, py[p00], my);
 #pragma omp simd reduction(+ : dO, o2, w2)
-    for (int p = p0; p < p1; ++p) {
-      const Hit<S> h = hit(M, mx, my, o, px[p], py[p], near);
+    for (int p = p00; p < p00 + TS; ++p) {
+      const Hit<S> h = hit(M, rw, mx, o, px[p], near);
       const bool blend = h.ok && j < last[p];
       const S a = blend ? h.a : S(0);
       const S zs = blend ? h.z : near;
@@ -449,7 +570,7 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
       const S dq0 = du * inv, dq1 = dv * inv, dq2 = -(du * h.u + dv * h.v) * inv;
       const S x = px[p], y = py[p];
       const S k0 = x * M[6] - M[0], k1 = x * M[7] - M[1], k2 = x * M[8] - M[2];
-      const S l0 = y * M[6] - M[3], l1 = y * M[7] - M[4], l2 = y * M[8] - M[5];
+      const S l0 = rw.l0, l1 = rw.l1, l2 = rw.l2;
       // q = k x l: dk = l x dq, dl = dq x k
       const S dk0 = l1 * dq2 - l2 * dq1, dk1 = l2 * dq0 - l0 * dq2, dk2 = l0 * dq1 - l1 * dq0;
       const S dl0 = dq1 * k2 - dq2 * k1, dl1 = dq2 * k0 - dq0 * k2, dl2 = dq0 * k1 - dq1 * k0;
@@ -465,6 +586,7 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
       w2 += wp * wp;
       w[p] = wp;
       T[p] = blend ? T[p] * (S(1) - a) : T[p];
+    }
     }
     if (FISHER) {
       int e = 0;
@@ -562,10 +684,13 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
   const int64_t HW = H * W;
   const bool dz = fl.depth || fl.dist;
   Projected<S> P(N);
+  g_stats = Stats();
   for (int64_t c = 0; c < C; ++c) {
     const Camera cam = camera_of(viewmats, Ks, c);
+    double t0 = omp_get_wtime();
     project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), N, cam, st, P);
-    const Bins B = bin_and_sort(P, N, st);
+    g_stats.project += omp_get_wtime() - t0;
+    const Bins B = bin_and_sort(P, N, st, g_stats);
     auto ptr = [&](const torch::Tensor& t, int64_t per) -> const S* {
       return t.numel() ? t.data_ptr<S>() + c * HW * per : nullptr;
     };
@@ -576,6 +701,7 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
                 dz ? ptr(grads[3], 1) : nullptr, dz ? ptr(grads[4], 1) : nullptr,
                 dz ? ptr(grads[5], 1) : nullptr, ptr(grads[6], 1)};
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
+    t0 = omp_get_wtime();
     std::vector<S> slots(B.ids.size() * size_t(G), S(0));
     const S* op = opac.data_ptr<S>();
 #pragma omp parallel for schedule(dynamic, 1)
@@ -583,7 +709,11 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
       if (fisher) backward_tile<S, true>(t, P, B, op, f, int(D), st, fl, in, G, slots.data());
       else backward_tile<S, false>(t, P, B, op, f, int(D), st, fl, in, G, slots.data());
     }
+    g_stats.blend += omp_get_wtime() - t0;
+    t0 = omp_get_wtime();
     const std::vector<S> rows = reduce_slots(B, N, G, slots);
+    g_stats.reduce += omp_get_wtime() - t0;
+    t0 = omp_get_wtime();
     if (fisher) {
       S* fg = fis_geo.data_ptr<S>() + c * N * NSYM;
       S* fo = fis_o.data_ptr<S>() + c * N;
@@ -594,6 +724,7 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
         fo[i] = rows[size_t(i) * G + NSYM];
         fw[i] = rows[size_t(i) * G + NSYM + 1];
       }
+      g_stats.chain += omp_get_wtime() - t0;
       continue;
     }
     S *gm = g_means.data_ptr<S>(), *gu = g_U.data_ptr<S>(), *gv = g_V.data_ptr<S>();
@@ -629,6 +760,7 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
       go[i] += row[NG];
       for (int d = 0; d < D; ++d) gf[i * D + d] += row[NG + 4 + d];
     }
+    g_stats.chain += omp_get_wtime() - t0;
   }
   if (fisher) return {fis_geo, fis_o, fis_w};
   return {g_means, g_U, g_V, g_n, g_op, g_feat};
@@ -663,4 +795,11 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   m.def("forward", &forward, "2DGS forward for C cameras");
   m.def("backward", &backward, "2DGS backward (or FisherRF squared contributions) for C cameras");
   m.def("num_threads", []() { return omp_get_max_threads(); });
+  m.def("last_stats", []() {
+    return std::map<std::string, double>{
+        {"project_s", g_stats.project}, {"bin_s", g_stats.bin}, {"sort_s", g_stats.sort},
+        {"blend_s", g_stats.blend}, {"reduce_s", g_stats.reduce}, {"chain_s", g_stats.chain},
+        {"evals", double(g_stats.evals)}, {"isects", double(g_stats.isects)},
+        {"by_camera", double(g_stats.by_camera)}};
+  }, "phase timings and pixel-splat evaluations of the last forward/backward call");
 }
