@@ -71,6 +71,9 @@ def read_ply(path: str | os.PathLike) -> dict:
     import plyfile
 
     path = Path(path)
+    fast = _read_uniform_binary(path)
+    if fast is not None:
+        return fast
     try:
         ply = plyfile.PlyData.read(str(path))
         vertex = ply["vertex"].data
@@ -95,6 +98,67 @@ def read_ply(path: str | os.PathLike) -> dict:
         normals = np.stack([vertex["nx"], vertex["ny"], vertex["nz"]], axis=1).astype(np.float64)
     return {"vertices": vertices, "faces": faces, "vertex_colors": colors, "vertex_normals": normals,
             "quad_faces": quad}
+
+
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "<i2", "int16": "<i2",
+              "ushort": "<u2", "uint16": "<u2", "int": "<i4", "int32": "<i4", "uint": "<u4", "uint32": "<u4",
+              "float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8"}
+
+
+def _read_uniform_binary(path: Path) -> dict | None:
+    """Fast path for the common layout (Replica's): little-endian binary, scalar vertex properties,
+    then faces that all have the same vertex count. None when the file is laid out otherwise."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+            end = head.find(b"end_header\n")
+            if not head.startswith(b"ply") or end < 0:
+                return None
+            lines = head[:end].decode("ascii", "replace").splitlines()
+            fh.seek(end + len(b"end_header\n"))
+            body = fh.read()
+    except OSError as exc:
+        raise SceneError(f"cannot read PLY file {path}: {exc}") from None
+    if "format binary_little_endian 1.0" not in lines:
+        return None
+    elements: list[list] = []
+    for line in lines:
+        w = line.split()
+        if w[:1] == ["element"] and len(w) == 3:
+            elements.append([w[1], int(w[2]), []])
+        elif w[:1] == ["property"] and elements:
+            elements[-1][2].append(w[1:])
+    if [e[0] for e in elements] != ["vertex", "face"]:
+        return None
+    (_, nv, vprops), (_, nf, fprops) = elements
+    if any(len(p) != 2 or p[0] not in _PLY_TYPES for p in vprops) or len(fprops) != 1 \
+            or fprops[0][0] != "list" or fprops[0][1] not in ("uchar", "uint8") \
+            or fprops[0][2] not in ("int", "int32", "uint", "uint32"):
+        return None
+    vdtype = np.dtype([(p[1], _PLY_TYPES[p[0]]) for p in vprops])
+    vbytes = nv * vdtype.itemsize
+    if nf == 0 or len(body) <= vbytes:
+        return None  # let the general reader report what is missing
+    k = body[vbytes]
+    fdtype = np.dtype([("n", "u1"), ("v", _PLY_TYPES[fprops[0][2]], (k,))])
+    if len(body) != vbytes + nf * fdtype.itemsize:
+        return None
+    vertex = np.frombuffer(body, vdtype, nv)
+    face = np.frombuffer(body, fdtype, nf, offset=vbytes)
+    if k < 3 or np.any(face["n"] != k) or not all(c in vdtype.names for c in "xyz"):
+        return None
+    faces, quad = _triangulate(face["v"].astype(np.int64), path)
+    names = vdtype.names
+    colors = None
+    if all(c in names for c in ("red", "green", "blue")) and vertex.dtype["red"] == np.uint8:
+        colors = np.stack([vertex["red"], vertex["green"], vertex["blue"]], axis=1)
+    elif any(c in names for c in ("red", "green", "blue")):
+        return None  # float or partial colors: the general reader converts them
+    normals = None
+    if all(c in names for c in ("nx", "ny", "nz")):
+        normals = np.stack([vertex["nx"], vertex["ny"], vertex["nz"]], axis=1).astype(np.float64)
+    return {"vertices": np.stack([vertex["x"], vertex["y"], vertex["z"]], axis=1).astype(np.float64),
+            "faces": faces, "vertex_colors": colors, "vertex_normals": normals, "quad_faces": quad}
 
 
 def _triangulate(polys, path: Path) -> tuple[np.ndarray, bool]:
