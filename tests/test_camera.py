@@ -97,6 +97,9 @@ def test_depth_is_zero_without_a_hit_or_beyond_far(plane_world):
     assert (depth[beyond] == 0).all()
     within = expected < 2.0 - 1e-3
     assert np.abs(depth[within] - expected[within]).max() < 1e-3
+    _, depth = cam.render(T)  # the first camera keeps its own far range on the shared world
+    mid = beyond & (expected < 5.0)
+    assert mid.sum() > 100 and np.abs(depth[mid] - expected[mid]).max() < 1e-3
 
 
 def test_known_point_projects_to_the_pixel_where_it_is_rendered(tmp_path):

@@ -29,7 +29,7 @@ class RGBDCamera:
     """Pinhole RGB-D sensor: `render(T_wc)` for any pose, `render_named(name)` for a model camera.
 
     Depth is z-depth in meters along the optical axis, 0 where nothing is hit within `far`.
-    `near`/`far` set the world's clip planes (shared by every camera of that world).
+    Each render sets the world's clip planes to this camera's `near`/`far`.
     """
 
     def __init__(self, world: World, width: int = 640, height: int = 480, hfov_deg: float = 90.0,
@@ -47,8 +47,7 @@ class RGBDCamera:
         m.vis.global_.offwidth = max(int(m.vis.global_.offwidth), self.width)
         m.vis.global_.offheight = max(int(m.vis.global_.offheight), self.height)
         extent = float(m.stat.extent)
-        m.vis.map.znear = self.near / extent
-        m.vis.map.zfar = 2.0 * self.far / extent  # far enough that hits up to `far` are kept
+        self._clip = (self.near / extent, 2.0 * self.far / extent)  # hits up to `far` are kept
         self._gl = mujoco.GLContext(m.vis.global_.offwidth, m.vis.global_.offheight)
         self._gl.make_current()
         self._ctx = mujoco.MjrContext(m, mujoco.mjtFontScale.mjFONTSCALE_100)
@@ -92,6 +91,7 @@ class RGBDCamera:
     def _draw(self, cam_id: int) -> tuple[np.ndarray, np.ndarray]:
         m, d = self.world.model, self.world.data
         self._gl.make_current()
+        m.vis.map.znear, m.vis.map.zfar = self._clip  # the model is shared with other cameras
         self._vcam.fixedcamid = cam_id
         mujoco.mjv_updateScene(m, d, self._opt, None, self._vcam, mujoco.mjtCatBit.mjCAT_ALL, self._scene)
         mujoco.mjr_render(self._rect, self._scene, self._ctx)
