@@ -22,7 +22,7 @@ class Scene:
     faces: np.ndarray  # (F, 3) int64 triangles
     vertex_colors: np.ndarray | None = None  # (V, 3) uint8
     face_colors: np.ndarray | None = None  # (F, 3) uint8
-    uv: np.ndarray | None = None  # (V, 2) float, with `texture`
+    uv: np.ndarray | None = None  # (V, 2) float, with `texture`; OBJ convention: v = 0 is the image's bottom row
     texture: np.ndarray | None = None  # (H, W, 3) uint8
     vertex_normals: np.ndarray | None = None  # (V, 3) as stored in the file, if any
     source: Path | None = None

@@ -11,7 +11,6 @@ emission plus the headlight's ambient add to exactly 1, so rendered colors equal
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import mujoco
 import numpy as np
