@@ -106,7 +106,7 @@ def test_cpu_gradcheck_float64():
         return tuple(getattr(out, k) for k in ALL)
 
     inputs = [t.clone().requires_grad_(True) for t in (means, quats, ls, op, feats)]
-    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-5, rtol=1e-4)
+    assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-5, rtol=1e-4, fast_mode=True)
 
 
 def test_feature_gradient_is_per_splat_pixel_sum_of_weights():
@@ -129,11 +129,11 @@ def test_feature_gradient_is_per_splat_pixel_sum_of_weights():
 
 def test_fisher_diag_matches_bruteforce_per_pixel_autograd():
     means, quats, ls, op, cols = make_scene(6, seed=2, dtype=torch.float64, spread=0.2, depth=1.5, size=(0.05, 0.2))
-    vm, K = cameras(2, 10, 8, torch.float64, f=10.0)
-    fd = render_fisher_diag(means, quats, ls, op, cols, vm, K, 10, 8)
+    vm, K = cameras(2, 8, 6, torch.float64, f=8.0)
+    fd = render_fisher_diag(means, quats, ls, op, cols, vm, K, 8, 6)
 
     def image(m, s, o, c):
-        return render_reference(m, quats, s, o, c, vm, K, 10, 8, 0.05, 10.0)["features"].sum(-1).reshape(-1)
+        return render_reference(m, quats, s, o, c, vm, K, 8, 6, 0.05, 10.0)["features"].sum(-1).reshape(-1)
 
     J = torch.autograd.functional.jacobian(image, (means, ls, op, cols))
     for name, got, j in zip(("position", "scale", "opacity", "color"),
