@@ -31,14 +31,17 @@ def depth_noise_prior(depth: torch.Tensor) -> torch.Tensor:
     return torch.where(depth > 0, _SIGMA_MIN / sigma, torch.zeros_like(depth))
 
 
-def information_gain(reliability: torch.Tensor, w: torch.Tensor, w_min: float) -> torch.Tensor:
-    """f [C,N] = -|w| log P(r_side) with P = sigmoid(log-odds); 0 where nearly edge-on (Eq. 21)."""
+def information_gain(reliability: torch.Tensor, w: torch.Tensor, w_min: float,
+                     weighted: bool = True) -> torch.Tensor:
+    """f [C,N] = -|w| log P(r_side) with P = sigmoid(log-odds); 0 where nearly edge-on (Eq. 21).
+    `weighted=False` (an ablation) drops the |w| factor."""
     side = observed_side(w, w_min)
     neg_log_p = F.softplus(-reliability)  # -log sigmoid(l), [N,2]
+    scale = w.abs() if weighted else torch.ones_like(w)
     gain = torch.zeros_like(w)
     for s in (FRONT, BACK):
         m = side == s
-        gain = torch.where(m, w.abs() * neg_log_p[:, s][None].expand_as(w), gain)
+        gain = torch.where(m, scale * neg_log_p[:, s][None].expand_as(w), gain)
     return gain
 
 
@@ -53,8 +56,10 @@ def scoring_intrinsics(K: torch.Tensor, width: int, height: int, score_w: int, s
 @torch.no_grad()
 def score_candidates(splats: dict[str, torch.Tensor], reliability: torch.Tensor, T_wc: torch.Tensor,
                      K: torch.Tensor, width: int, height: int, *, w_min: float, near: float, far: float,
-                     prior: str = "one", chunk: int = 64, backend: str = "auto") -> torch.Tensor:
-    """Expected MI [C] of candidate camera poses T_wc [C,4,4] rendered with K at width x height."""
+                     prior: str = "one", chunk: int = 64, backend: str = "auto", weighted: bool = True,
+                     one_sided: bool = False) -> torch.Tensor:
+    """Expected MI [C] of candidate camera poses T_wc [C,4,4] rendered with K at width x height.
+    Ablations (see reliability.update_from_frame): `weighted=False`, `one_sided=True`."""
     C = T_wc.shape[0]
     if C == 0 or splats["means"].shape[0] == 0:
         return torch.zeros(C, dtype=torch.float64)
@@ -64,7 +69,7 @@ def score_candidates(splats: dict[str, torch.Tensor], reliability: torch.Tensor,
     for start in range(0, C, chunk):
         poses = T_wc[start:start + chunk]
         w = observation_weights(splats["means"], normals, poses[:, :3, 3])
-        gain = information_gain(reliability, w, w_min)[..., None]
+        gain = information_gain(reliability, w.abs() if one_sided else w, w_min, weighted)[..., None]
         n = poses.shape[0]
         out = render(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"], gain,
                      torch.linalg.inv(poses), K[None].expand(n, 3, 3).contiguous(), width, height,

@@ -102,10 +102,11 @@ def splat_pixel_sums(means: torch.Tensor, quats: torch.Tensor, log_scales: torch
 
 
 def reliability_update(reliability: torch.Tensor, w: torch.Tensor, sums: torch.Tensor,
-                       cfg: ReliabilityConfig) -> torch.Tensor:
-    """New log-odds [N,2]: add lambda_T |w| S to the observed side (Eq. 14), clamp, skip edge-on."""
+                       cfg: ReliabilityConfig, weighted: bool = True) -> torch.Tensor:
+    """New log-odds [N,2]: add lambda_T |w| S to the observed side (Eq. 14), clamp, skip edge-on.
+    `weighted=False` (an ablation) adds lambda_T S without the |w| factor."""
     side = observed_side(w, cfg.w_min)
-    delta = cfg.lambda_T * w.abs() * sums
+    delta = cfg.lambda_T * (w.abs() if weighted else 1.0) * sums
     out = reliability.clone()
     for s in (FRONT, BACK):
         m = side == s
@@ -116,10 +117,13 @@ def reliability_update(reliability: torch.Tensor, w: torch.Tensor, sums: torch.T
 @torch.no_grad()
 def update_from_frame(splats: dict[str, torch.Tensor], reliability: torch.Tensor, rgb_obs: torch.Tensor,
                       depth_obs: torch.Tensor, T_wc: torch.Tensor, K: torch.Tensor, cfg: ReliabilityConfig,
-                      *, ssim_weight: float, near: float, far: float, backend: str = "auto") -> tuple[torch.Tensor, dict]:
+                      *, ssim_weight: float, near: float, far: float, backend: str = "auto",
+                      weighted: bool = True, one_sided: bool = False) -> tuple[torch.Tensor, dict]:
     """One reliability update after a frame was mapped; returns the new log-odds and diagnostics.
 
     `splats` holds means, quats, log_scales, opacity_logits (the map's current parameters).
+    Ablations: `weighted=False` drops the |w| factor; `one_sided=True` puts every observation on
+    the front log-odds (one reliability per splat, as 3D GauSS-MI without its directions).
     """
     H, W = depth_obs.shape[:2]
     viewmat = torch.linalg.inv(T_wc)
@@ -133,7 +137,9 @@ def update_from_frame(splats: dict[str, torch.Tensor], reliability: torch.Tensor
                             viewmat, K, v, near, far, backend)
     normals = splat_normals(splats["quats"])
     w = observation_weights(splats["means"], normals, T_wc[None, :3, 3])[0]
-    new = reliability_update(reliability, w, sums, cfg)
+    if one_sided:
+        w = w.abs()
+    new = reliability_update(reliability, w, sums, cfg, weighted)
     touched = (sums != 0) & (w.abs() > cfg.w_min)
     return new, {"loss_mean": float(L.mean()), "updated": int(touched.sum())}
 

@@ -55,6 +55,8 @@ class GaussMI2D:
     """The paper's method: two-sided reliability (Eq. 14) and 2D GauSS-MI (Eq. 22)."""
 
     name = "gaussmi2d"
+    weighted = True  # ablation switches, set by the variants in active.baselines
+    one_sided = False
 
     def __init__(self, cfg: ScenarioConfig) -> None:
         self.cfg = cfg
@@ -69,7 +71,7 @@ class GaussMI2D:
         new, diag = reliability.update_from_frame(
             splats_of(mapper), mapper.map["reliability"], t(obs.rgb), t(obs.depth)[..., None], t(obs.T_wc),
             t(obs.K), self.cfg.reliability, ssim_weight=self.cfg.mapper.ssim_weight, near=mapper.near,
-            far=mapper.far, backend=self.cfg.mapper.backend)
+            far=mapper.far, backend=self.cfg.mapper.backend, weighted=self.weighted, one_sided=self.one_sided)
         mapper.map["reliability"][:] = new
         return diag
 
@@ -80,7 +82,8 @@ class GaussMI2D:
                                         self.K_score.to(mapper.device), s.scoring_width, s.scoring_height,
                                         w_min=self.cfg.reliability.w_min, near=mapper.near, far=mapper.far,
                                         prior="one" if s.measurement_prior == "one" else "depth_noise",
-                                        backend=self.cfg.mapper.backend)
+                                        backend=self.cfg.mapper.backend, weighted=self.weighted,
+                                        one_sided=self.one_sided)
         return mi.cpu().numpy()
 
 
@@ -113,3 +116,6 @@ def make_selector(cfg: ScenarioConfig) -> Selector:
         raise ConfigError(f"config key 'selector.method': unknown method {name!r} "
                           f"(available: {', '.join(sorted(SELECTORS))})")
     return SELECTORS[name](cfg)
+
+
+from flightrecon.active import baselines  # noqa: E402,F401  (registers the baselines and ablations)

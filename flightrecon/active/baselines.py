@@ -1,0 +1,386 @@
+"""The paper's baselines and the ablations of 2D GauSS-MI, as view selectors (spec/baselines.md).
+
+All of them share our online 2DGS mapper, our planner and our candidate library (the loop hands
+every selector the same feasible candidates), so a comparison isolates the selection criterion.
+Per-splat state lives in columns of the GaussianMap (`add_column`), so it stays aligned with the
+splats through growth and pruning.
+
+- `gaussmi` (Xie and Pan, RSS 2025): four world-horizontal reliability log-odds per splat
+  [+x, +y, -x, -y], updated from its loss image L = 0.95 |I - I_obs| + 0.05 |D - D_obs|; view score
+  = sum_p sum_i w_i(p) g_i with g_i = sum_k c_ik (-ln P_ik), times (1 - revisit discount).
+  Deviations, forced by a rasterizer without a per-pair transmittance gate: the evidence sums all
+  blend weights w_i(p) instead of only those whose transmittance before i exceeds 0.8, and a splat
+  is skipped when its total blend weight over valid pixels is below 1 (instead of "fewer than 5
+  gated pixels"). The revisit discount 0.95^k takes k = frames since the matching earlier view + 1.
+- `fisherrf` (Jiang et al., ECCV 2024): score = sum_theta H_cand / (H_train + lambda) with the
+  rasterizer's squared-contribution diagonal Hessian (position, color, scale, opacity); H_train
+  sums over all frames collected so far and is recomputed at each selection (one view is chosen
+  per step, so greedy batch acquisition reduces to the argmax). Both at the scoring resolution.
+- `activegs` (Jin et al., RA-L 2025): surfel confidence, a 0.2 m occupancy voxel map and its
+  exploration utility, the confidence-weighted exploitation utility, and the path-length term.
+  Its own pitch-free candidate generator (regions of interest + random) is replaced by our
+  planner's library (a quadrotor with a fixed camera cannot fly pitch); the path length is the
+  planned trajectory's length when the loop passes it (`lengths=`), else the straight-line distance
+  from the last captured camera, and "all voxels" is the fixed grid `baselines.activegs_extent`
+  centered on the first camera. A splat counts as seen in a view when its total blend weight over
+  the image exceeds 0.03 and it faces the camera.
+- Ablations of ours: `gaussmi2d_now` (no |w| weight in update and gain), `gaussmi2d_onesided` (one
+  reliability per splat), `gaussmi2d_color` (color-only loss image: lambda_rD = lambda_rNr = 0).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import torch
+
+from flightrecon.active.gaussmi2d import scoring_intrinsics
+from flightrecon.active.reliability import observation_weights, splat_normals, splat_pixel_sums
+from flightrecon.active.selectors import GaussMI2D, Observation, register, splats_of
+from flightrecon.config import ScenarioConfig
+from flightrecon.geometry import intrinsics, pixel_rays, yaw_of_camera
+from flightrecon.mapping.mapper import OnlineMapper
+from flightrecon.render import render, render_fisher_diag
+
+EXPLORE_RANGE = 5.0  # m, ActiveGS's utility range
+
+
+def _t(a, device) -> torch.Tensor:
+    return torch.as_tensor(np.asarray(a, np.float32), device=device)
+
+
+def _ensure_column(mapper: OnlineMapper, name: str, shape: tuple[int, ...]) -> torch.Tensor:
+    if name not in mapper.map:
+        mapper.map.add_column(name, shape, torch.float32)
+    return mapper.map[name]
+
+
+def _render(splats: dict, features: torch.Tensor, viewmats: torch.Tensor, K: torch.Tensor, W: int, H: int,
+            mapper: OnlineMapper, outputs: tuple[str, ...], backend: str):
+    C = viewmats.shape[0]
+    return render(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"], features,
+                  viewmats, K[None].expand(C, 3, 3).contiguous(), W, H, near=mapper.near, far=mapper.far,
+                  outputs=outputs, backend=backend)
+
+
+class _Scoring:
+    """Shared: the scoring intrinsics of the config's camera at the selector's scoring resolution."""
+
+    def __init__(self, cfg: ScenarioConfig, width: int, height: int) -> None:
+        c = cfg.camera
+        K = torch.tensor(intrinsics(c.width, c.height, c.hfov_deg), dtype=torch.float32)
+        self.width, self.height = width, height
+        self.K_score = scoring_intrinsics(K, c.width, c.height, width, height)
+
+
+# ---------------------------------------------------------------------------------- GauSS-MI
+def direction_weights(means: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
+    """c [C,N,4] = [max(dx,0), max(dy,0), max(-dx,0), max(-dy,0)] of d = (mu - c)/|mu - c|."""
+    d = torch.nn.functional.normalize(means[None] - centers[:, None, :], dim=-1)
+    dx, dy = d[..., 0], d[..., 1]
+    return torch.stack([dx.clamp_min(0), dy.clamp_min(0), (-dx).clamp_min(0), (-dy).clamp_min(0)], -1)
+
+
+def gaussmi_loss_image(color: torch.Tensor, depth: torch.Tensor, rgb_obs: torch.Tensor,
+                       depth_obs: torch.Tensor) -> torch.Tensor:
+    """L [H,W] = 0.95 mean_rgb |I - I_obs| + 0.05 |D - D_obs| (GauSS-MI's loss image)."""
+    return 0.95 * (color - rgb_obs).abs().mean(-1) + 0.05 * (depth - depth_obs).abs()[..., 0]
+
+
+def gaussmi_gain(logodds: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+    """g [C,N] = sum_k c_ik (-ln P_ik), P = sigmoid(l) clamped to [1e-4, 0.9999]."""
+    P = torch.sigmoid(logodds).clamp(1e-4, 0.9999)
+    return (c * (-torch.log(P))[None]).sum(-1)
+
+
+def revisit_discount(position: np.ndarray, yaw: float, visited: list[tuple[int, np.ndarray, float]],
+                     now: int) -> float:
+    """0.95^k for the most recent earlier view within 0.3 m and 10 deg (k = frames since + 1), else 0."""
+    for frame, p, y in reversed(visited):
+        dyaw = abs((yaw - y + math.pi) % (2 * math.pi) - math.pi)
+        if np.linalg.norm(position - p) <= 0.3 and dyaw <= math.radians(10.0):
+            return 0.95 ** (now - frame + 1)
+    return 0.0
+
+
+class GaussMISelector(_Scoring):
+    name = "gaussmi"
+    COLUMN = "gaussmi_logodds"
+
+    def __init__(self, cfg: ScenarioConfig) -> None:
+        super().__init__(cfg, cfg.selector.scoring_width, cfg.selector.scoring_height)
+        self.cfg = cfg
+        self.visited: list[tuple[int, np.ndarray, float]] = []
+
+    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
+        b = self.cfg.baselines
+        dev = mapper.device
+        logodds = _ensure_column(mapper, self.COLUMN, (4,))
+        self.visited.append((obs.index, np.asarray(obs.T_wc[:3, 3], float), yaw_of_camera(obs.T_wc)))
+        if len(mapper.map) == 0:
+            return {}
+        sp = splats_of(mapper)
+        T = _t(obs.T_wc, dev)
+        K = _t(obs.K, dev)
+        H, W = obs.depth.shape
+        viewmat = torch.linalg.inv(T)
+        out = _render(sp, sp["colors"], viewmat[None], K, W, H, mapper, ("features", "depth"),
+                      self.cfg.mapper.backend)
+        depth_obs = _t(obs.depth, dev)[..., None]
+        valid = depth_obs[..., 0] > 0
+        L = gaussmi_loss_image(out.features[0], out.depth[0], _t(obs.rgb, dev), depth_obs)
+        v = torch.where(valid, -torch.log((b.gaussmi_lambda_L * L).clamp_min(1e-4)), 0.0)
+        args = (sp["means"], sp["quats"], sp["log_scales"], sp["opacity_logits"], viewmat, K)
+        S = splat_pixel_sums(*args, v, mapper.near, mapper.far, self.cfg.mapper.backend)
+        cover = splat_pixel_sums(*args, valid.float(), mapper.near, mapper.far, self.cfg.mapper.backend)
+        c = direction_weights(sp["means"], T[None, :3, 3])[0]
+        delta = (b.gaussmi_lambda_T * c * S[:, None]).clamp(-100.0, 100.0)
+        delta = torch.where((cover >= 1.0)[:, None], delta, 0.0)
+        logodds[:] = (logodds + delta).clamp(-10.0, 10.0)
+        return {"updated": int((cover >= 1.0).sum())}
+
+    @torch.no_grad()
+    def view_scores(self, mapper: OnlineMapper, poses: np.ndarray) -> torch.Tensor:
+        """sum_p sum_i w_i(p) g_i per candidate (before the revisit discount)."""
+        dev = mapper.device
+        if len(mapper.map) == 0:
+            return torch.zeros(len(poses), dtype=torch.float64)
+        sp = splats_of(mapper)
+        logodds = _ensure_column(mapper, self.COLUMN, (4,))
+        T = _t(poses, dev)
+        scores = []
+        for s in range(0, len(T), 64):
+            Tc = T[s:s + 64]
+            g = gaussmi_gain(logodds, direction_weights(sp["means"], Tc[:, :3, 3]))[..., None]
+            out = _render(sp, g, torch.linalg.inv(Tc), self.K_score.to(dev), self.width, self.height, mapper,
+                          ("features",), self.cfg.mapper.backend)
+            scores.append(out.features[..., 0].double().sum(dim=(1, 2)))
+        return torch.cat(scores).cpu()
+
+    def score(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
+        raw = self.view_scores(mapper, poses).numpy()
+        now = self.visited[-1][0] if self.visited else 0
+        disc = np.array([revisit_discount(T[:3, 3], yaw_of_camera(T), self.visited, now) for T in poses])
+        return raw * (1.0 - disc)
+
+
+# ---------------------------------------------------------------------------------- FisherRF
+def fisher_score(H_cand, H_train, lam: float) -> float:
+    """sum over parameters of H_cand / (H_train + lambda) (FisherDiag fields)."""
+    return float(sum((hc.double() / (ht.double() + lam)).sum() for hc, ht in zip(H_cand, H_train)))
+
+
+class FisherRFSelector(_Scoring):
+    name = "fisherrf"
+    TRAIN_CHUNK = 4  # cameras per Hessian call (bounds the kernel's per-camera buffers)
+
+    def __init__(self, cfg: ScenarioConfig) -> None:
+        super().__init__(cfg, cfg.selector.scoring_width, cfg.selector.scoring_height)
+        self.cfg = cfg
+        self.train_poses: list[np.ndarray] = []
+
+    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
+        self.train_poses.append(np.asarray(obs.T_wc, np.float32))
+        return {}
+
+    def hessian(self, mapper: OnlineMapper, poses: np.ndarray) -> list[torch.Tensor]:
+        """Diagonal Hessian (position, color, scale, opacity) summed over the views T_wc [V,4,4]."""
+        sp = splats_of(mapper)
+        total = None
+        for s in range(0, len(poses), self.TRAIN_CHUNK):
+            vm = torch.linalg.inv(_t(poses[s:s + self.TRAIN_CHUNK], mapper.device))
+            Ks = self.K_score.to(mapper.device)[None].expand(vm.shape[0], 3, 3).contiguous()
+            h = render_fisher_diag(sp["means"], sp["quats"], sp["log_scales"], sp["opacity_logits"],
+                                   sp["colors"], vm, Ks, self.width, self.height, mapper.near, mapper.far)
+            total = list(h) if total is None else [a + b for a, b in zip(total, h)]
+        return total
+
+    @torch.no_grad()
+    def score(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
+        if len(mapper.map) == 0 or not self.train_poses:
+            return np.zeros(len(poses))
+        H_train = self.hessian(mapper, np.stack(self.train_poses))
+        lam = self.cfg.baselines.fisherrf_lambda
+        return np.array([fisher_score(self.hessian(mapper, np.asarray(T)[None]), H_train, lam) for T in poses])
+
+
+# ---------------------------------------------------------------------------------- ActiveGS
+def surfel_confidence(n_obs: torch.Tensor, v_sum: torch.Tensor, S: torch.Tensor) -> torch.Tensor:
+    """conf = clamp(exp(1 - |v_bar|) S, 0, 1), v_bar the mean unit view direction (0 if unseen)."""
+    v_bar = v_sum / n_obs.clamp_min(1)[:, None]
+    return torch.where(n_obs > 0, (torch.exp(1 - v_bar.norm(dim=-1)) * S).clamp(0, 1), torch.zeros_like(S))
+
+
+def occupancy_weight(distance: torch.Tensor) -> torch.Tensor:
+    """ActiveGS's log-odds step 2.8 clip(1 - 0.1 d, 0, 1) of a measurement at range d."""
+    return 2.8 * (1 - 0.1 * distance).clamp(0, 1)
+
+
+class VoxelMap:
+    """ActiveGS's coarse occupancy grid: log-odds in [-4.5, 4.5], occupied at P >= 0.8, free at
+    P <= 0.2, unexplored where no ray ever touched; a fixed box of `extent` around `center`."""
+
+    OCC = math.log(0.8 / 0.2)
+
+    def __init__(self, center: np.ndarray, extent: list, voxel: float) -> None:
+        self.voxel = float(voxel)
+        self.dims = np.maximum(1, np.ceil(np.asarray(extent, float) / voxel).astype(int))
+        self.origin = np.asarray(center, float) - 0.5 * self.dims * voxel
+        n = int(np.prod(self.dims))
+        self.logodds = torch.zeros(n)
+        self.touched = torch.zeros(n, dtype=torch.bool)
+
+    def index(self, points: torch.Tensor) -> torch.Tensor:
+        """Flat voxel index of world points [...,3]; -1 outside the grid."""
+        ijk = torch.floor((points.double() - torch.as_tensor(self.origin)) / self.voxel).long()
+        dims = torch.as_tensor(self.dims)
+        inside = ((ijk >= 0) & (ijk < dims)).all(-1)
+        flat = (ijk[..., 0] * dims[1] + ijk[..., 1]) * dims[2] + ijk[..., 2]
+        return torch.where(inside, flat, torch.full_like(flat, -1))
+
+    def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, stride: int = 4) -> None:
+        """One depth frame (every `stride`-th pixel): +w at each ray's end voxel, -w along the ray."""
+        rays = torch.as_tensor(pixel_rays(depth.shape[1], depth.shape[0], K)[::stride, ::stride].reshape(-1, 3))
+        d = torch.as_tensor(np.asarray(depth, float)[::stride, ::stride].reshape(-1))
+        ok = d > 0
+        rays, d = rays[ok], d[ok]
+        R, c = torch.as_tensor(T_wc[:3, :3]), torch.as_tensor(T_wc[:3, 3])
+        dirs = rays @ R.T  # world, z-depth 1
+        dist = d * dirs.norm(dim=-1)
+        w = occupancy_weight(dist)
+        end = self.index(c + dirs * d[:, None])
+        steps = torch.arange(0.5, float(d.max()) / (self.voxel / 2) if len(d) else 0.5) * (self.voxel / 2)
+        frac = steps[None, :] / dist[:, None].clamp_min(1e-9)  # along the ray, in units of its length
+        free_pts = c + (dirs * d[:, None])[:, None, :] * frac[..., None]
+        before = steps[None, :] < (dist[:, None] - self.voxel / 2)
+        free = self.index(free_pts)
+        wf = w[:, None].expand_as(free)
+        m = before & (free >= 0)
+        delta = torch.zeros_like(self.logodds, dtype=torch.float64)
+        free_w = torch.zeros_like(delta).scatter_reduce(0, free[m], wf[m], "amax", include_self=True)
+        occ_w = torch.zeros_like(delta).scatter_reduce(0, end[end >= 0], w[end >= 0], "amax", include_self=True)
+        delta = torch.where(occ_w > 0, occ_w, -free_w)
+        self.touched |= (occ_w > 0) | (free_w > 0)
+        self.logodds = (self.logodds + delta.float()).clamp(-4.5, 4.5)
+
+    def visible_unexplored(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> int:
+        """Unexplored voxels seen from a camera: along its pixel rays up to 5 m, before the first
+        occupied voxel (rendered at the given resolution)."""
+        rays = torch.as_tensor(pixel_rays(width, height, K).reshape(-1, 3))
+        dirs = torch.nn.functional.normalize(rays @ torch.as_tensor(T_wc[:3, :3]).T, dim=-1)
+        steps = torch.arange(0.5, EXPLORE_RANGE / (self.voxel / 2)) * (self.voxel / 2)
+        pts = torch.as_tensor(T_wc[:3, 3]) + dirs[:, None, :] * steps[None, :, None]
+        idx = self.index(pts)
+        occ = torch.where(idx >= 0, self.logodds[idx.clamp_min(0)] >= self.OCC, False)
+        blocked = torch.cumsum(occ.int(), 1) - occ.int() > 0
+        seen = (idx >= 0) & ~blocked
+        unexplored = seen & ~self.touched[idx.clamp_min(0)]
+        return int(torch.unique(idx[unexplored]).numel())
+
+    @property
+    def size(self) -> int:
+        return int(self.logodds.numel())
+
+
+def activegs_combine(utility: np.ndarray, lengths: np.ndarray, path_weight: float) -> np.ndarray:
+    """U / sum U - path_weight * L / sum L (a zero sum leaves its term out)."""
+    u = utility / utility.sum() if utility.sum() > 0 else np.zeros_like(utility)
+    p = lengths / lengths.sum() if lengths.sum() > 0 else np.zeros_like(lengths)
+    return u - path_weight * p
+
+
+class ActiveGSSelector(_Scoring):
+    name = "activegs"
+    SEEN_WEIGHT = 0.03
+
+    def __init__(self, cfg: ScenarioConfig) -> None:
+        c = cfg.camera
+        super().__init__(cfg, max(1, c.width // 4), max(1, c.height // 4))  # ActiveGS: quarter resolution
+        self.cfg = cfg
+        self.voxels: VoxelMap | None = None
+        self.last_center: np.ndarray | None = None
+
+    def confidence(self, mapper: OnlineMapper) -> torch.Tensor:
+        return surfel_confidence(_ensure_column(mapper, "ags_nobs", ()), _ensure_column(mapper, "ags_vsum", (3,)),
+                                 _ensure_column(mapper, "ags_S", ()))
+
+    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
+        b = self.cfg.baselines
+        if self.voxels is None:
+            self.voxels = VoxelMap(obs.T_wc[:3, 3], b.activegs_extent, b.activegs_voxel)
+        self.voxels.integrate(obs.depth, obs.K, obs.T_wc)
+        self.last_center = np.asarray(obs.T_wc[:3, 3], float)
+        n_obs, v_sum, S = (_ensure_column(mapper, "ags_nobs", ()), _ensure_column(mapper, "ags_vsum", (3,)),
+                           _ensure_column(mapper, "ags_S", ()))
+        if len(mapper.map) == 0:
+            return {}
+        dev = mapper.device
+        sp = splats_of(mapper)
+        T, K = _t(obs.T_wc, dev), _t(obs.K, dev)
+        H, W = obs.depth.shape
+        weight = splat_pixel_sums(sp["means"], sp["quats"], sp["log_scales"], sp["opacity_logits"],
+                                  torch.linalg.inv(T), K, torch.ones(H, W, device=dev), mapper.near, mapper.far,
+                                  self.cfg.mapper.backend)
+        to_cam = T[:3, 3][None] - sp["means"]
+        dist = to_cam.norm(dim=-1)
+        v = to_cam / dist.clamp_min(1e-9)[:, None]
+        n_dot_v = observation_weights(sp["means"], splat_normals(sp["quats"]), T[None, :3, 3])[0]
+        seen = (weight > self.SEEN_WEIGHT) & (n_dot_v > 0)
+        n_obs[seen] += 1
+        v_sum[seen] += v[seen]
+        S[seen] += (1 - (dist[seen] / EXPLORE_RANGE).clamp(0, 1)) * n_dot_v[seen].clamp(0, 1)
+        return {"seen": int(seen.sum())}
+
+    @torch.no_grad()
+    def utilities(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
+        """U = 1000 U_explore + U_exploit per candidate (before normalization and path term)."""
+        K = self.K_score.numpy().astype(float)
+        explore = np.array([self.voxels.visible_unexplored(T, K, self.width, self.height) for T in poses],
+                           float) / self.voxels.size if self.voxels is not None else np.zeros(len(poses))
+        exploit = np.zeros(len(poses))
+        if len(mapper.map):
+            dev = mapper.device
+            sp = splats_of(mapper)
+            conf = self.confidence(mapper)[:, None]
+            T = _t(poses, dev)
+            for s in range(0, len(T), 64):
+                out = _render(sp, conf, torch.linalg.inv(T[s:s + 64]), self.K_score.to(dev), self.width,
+                              self.height, mapper, ("features", "alpha", "depth"), self.cfg.mapper.backend)
+                D = out.depth[..., 0]
+                surface = (out.alpha[..., 0] > 0.5) & (D <= EXPLORE_RANGE)
+                C = torch.where(surface, out.features[..., 0].clamp(0, 1), torch.ones_like(D))
+                exploit[s:s + 64] = ((1 - C) * D / EXPLORE_RANGE).mean(dim=(1, 2)).double().cpu().numpy()
+        return 1000.0 * explore + exploit
+
+    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
+        if lengths is None:  # the loop did not pass planned lengths: straight line from the last view
+            ref = self.last_center if self.last_center is not None else np.zeros(3)
+            lengths = np.linalg.norm(np.asarray(poses)[:, :3, 3] - ref, axis=-1)
+        return activegs_combine(self.utilities(mapper, poses), np.asarray(lengths, float),
+                                self.cfg.baselines.activegs_path_weight)
+
+
+# ---------------------------------------------------------------------------------- ablations
+class GaussMI2DNoWeight(GaussMI2D):
+    name = "gaussmi2d_now"
+    weighted = False
+
+
+class GaussMI2DOneSided(GaussMI2D):
+    name = "gaussmi2d_onesided"
+    one_sided = True
+
+
+class GaussMI2DColorOnly(GaussMI2D):
+    name = "gaussmi2d_color"
+
+    def __init__(self, cfg: ScenarioConfig) -> None:
+        color_only = dataclasses.replace(cfg.reliability, lambda_rD=0.0, lambda_rNr=0.0)
+        super().__init__(dataclasses.replace(cfg, reliability=color_only))
+
+
+for _cls in (GaussMISelector, FisherRFSelector, ActiveGSSelector, GaussMI2DNoWeight, GaussMI2DOneSided,
+             GaussMI2DColorOnly):
+    register(_cls.name, _cls)

@@ -1,0 +1,152 @@
+"""Full evaluation of a finished run folder: rendering metrics, mesh metrics, model size.
+
+Reads the run's config.toml and map.ply, rebuilds the scene's fixed evaluation views (the same
+views the loop scored during the flight, flightrecon.evaluation.views), and writes
+`eval.json`, `mesh.ply` (the TSDF mesh of the map) and `novel_view.npz` (the first evaluation
+view's ground truth and renders, for the sweep's figures) into the run folder.
+
+The mesh is fused from the map's rendered depth at the evaluation views (expected depth where the
+rendered opacity exceeds 0.5), the same views that define the visible part of the ground truth
+(flightrecon.evaluation.mesh_metrics), so mesh metrics and rendering metrics judge the same region.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import trimesh
+
+from flightrecon.config import ScenarioConfig, load_config
+from flightrecon.errors import FlightReconError
+from flightrecon.evaluation.lpips_metric import LpipsMetric
+from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface, visible_mask
+from flightrecon.evaluation.tsdf import fuse_depth_maps
+from flightrecon.evaluation.views import EvaluationSet
+from flightrecon.fileio import atomic_path, write_json
+from flightrecon.geometry import pixel_rays
+from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim
+from flightrecon.mapping.losses import normals_from_depth
+from flightrecon.mapping.ply import load_map
+from flightrecon.mapping.store import GaussianMap
+from flightrecon.render import render
+
+SURFACE_ALPHA = 0.5  # rendered opacity above which a pixel's depth enters the TSDF
+
+
+@dataclass
+class MapRenderer:
+    """Renders a saved map the way the loop's mapper does (the `render_view` EvaluationSet uses)."""
+
+    map: GaussianMap
+    near: float
+    far: float
+    backend: str = "auto"
+
+    @torch.no_grad()
+    def render_view(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int,
+                    outputs: tuple[str, ...] = ("features", "alpha", "depth")):
+        m = self.map
+        viewmat = torch.as_tensor(np.linalg.inv(T_wc), dtype=torch.float32)[None]
+        Ks = torch.as_tensor(K, dtype=torch.float32)[None]
+        return render(m["means"], torch.nn.functional.normalize(m["quats"], dim=-1), m["log_scales"],
+                      m["opacity_logits"], m["colors"], viewmat, Ks, width, height, near=self.near,
+                      far=self.far, outputs=outputs, backend=self.backend)
+
+
+def evaluation_set_for(cfg: ScenarioConfig) -> tuple[EvaluationSet, trimesh.Trimesh]:
+    """The scene's evaluation views with ground truth (as the loop builds them) and the true mesh."""
+    from flightrecon.mission import flight_region
+    from flightrecon.planning.distance_field import DistanceField
+    from flightrecon.scene.source import scene_from_config
+    from flightrecon.sim.camera import RGBDCamera
+    from flightrecon.sim.world import build_world
+
+    c = cfg.camera
+    scene = scene_from_config(cfg.scene)
+    world = build_world(scene, cfg)
+    camera = RGBDCamera(world, c.width, c.height, c.hfov_deg, c.near, c.far)
+    workspace, start = flight_region(scene, cfg)
+    pad = cfg.drone.body_radius + cfg.planner.safety_margin + 0.2
+    truth = DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size,
+                                    workspace + np.array([[-pad], [pad]]), signed=False)
+    return EvaluationSet.for_mission(camera, truth, workspace, float(start[2]), cfg), scene.trimesh
+
+
+def normal_angle_error_deg(normal: torch.Tensor, depth_gt: torch.Tensor, K: np.ndarray) -> float:
+    """Mean angle (degrees) between rendered camera-frame normals [H,W,3] and the normals of the
+    ground-truth depth [H,W,1], over pixels where both exist."""
+    H, W = depth_gt.shape[:2]
+    rays = torch.as_tensor(pixel_rays(W, H, K), dtype=torch.float32)
+    n_gt = normals_from_depth(depth_gt, rays)
+    n = torch.nn.functional.normalize(normal, dim=-1)
+    ok = (n_gt.abs().sum(-1) > 0) & (normal.norm(dim=-1) > 0.5)
+    if not bool(ok.any()):
+        return float("nan")
+    cos = (n * n_gt).sum(-1).abs().clamp(max=1.0)  # 2DGS normals face the camera: sign-free angle
+    return float(torch.rad2deg(torch.acos(cos[ok])).mean())
+
+
+def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, ev: EvaluationSet, gt_mesh: trimesh.Trimesh,
+                 lpips: LpipsMetric) -> tuple[dict, dict, trimesh.Trimesh]:
+    """(metrics, first-view renders, TSDF mesh) of a map on the evaluation views."""
+    r = MapRenderer(gmap, cfg.camera.near, cfg.camera.far, cfg.mapper.backend)
+    ps, ss, dl, na, lp, depths = [], [], [], [], [], []
+    first: dict = {}
+    for i, T in enumerate(ev.poses):
+        out = r.render_view(T, ev.K, ev.width, ev.height, outputs=("features", "alpha", "depth", "normal"))
+        color = out.features[0].clamp(0, 1)
+        ps.append(float(psnr(color, ev.rgb[i])))
+        ss.append(float(ssim(color, ev.rgb[i])))
+        dl.append(100.0 * float(depth_l1(out.depth[0], ev.depth[i])))
+        na.append(normal_angle_error_deg(out.normal[0], ev.depth[i], ev.K))
+        if lpips.available:
+            lp.append(lpips(color, ev.rgb[i]))
+        d = torch.where(out.alpha[0] > SURFACE_ALPHA, out.depth[0], torch.zeros_like(out.depth[0]))
+        depths.append(d[..., 0].numpy().astype(np.float64))
+        if i == 0:
+            first = {"gt_rgb": ev.rgb[0].numpy(), "gt_depth": ev.depth[0, ..., 0].numpy(),
+                     "rgb": color.numpy(), "depth": out.depth[0, ..., 0].numpy(),
+                     "normal": out.normal[0].numpy(), "psnr": ps[0], "depth_l1_cm": dl[0],
+                     "normal_err_deg": na[0]}
+    m = cfg.metrics
+    mesh = fuse_depth_maps(depths, ev.poses, ev.K, voxel=m.tsdf_voxel, truncation=m.tsdf_truncation,
+                           max_depth=cfg.camera.far)
+    gt_depths = [ev.depth[i, ..., 0].numpy().astype(np.float64) for i in range(len(ev.poses))]
+    gt_pts = sample_surface(np.asarray(gt_mesh.vertices), np.asarray(gt_mesh.faces), m.sample_points, seed=0)
+    gt_pts = gt_pts[visible_mask(gt_pts, ev.poses, gt_depths, ev.K, m.visibility_tolerance)]
+    rec_pts = sample_surface(mesh.vertices, mesh.faces, m.sample_points, seed=0)
+    rec_pts = rec_pts[visible_mask(rec_pts, ev.poses, gt_depths, ev.K, m.visibility_tolerance)]
+    geo = point_metrics(rec_pts, gt_pts, m.fscore_threshold)
+    metrics = {
+        "psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)),
+        "lpips": float(np.mean(lp)) if lp else "n/a", "lpips_note": lpips.reason,
+        "depth_l1_cm": float(np.mean(dl)), "normal_err_deg": float(np.nanmean(na)),
+        "accuracy_cm": 100 * geo["accuracy"], "completion_cm": 100 * geo["completion"],
+        "chamfer_cm": 100 * geo["chamfer"], "precision": geo["precision"], "recall": geo["recall"],
+        "fscore": geo["fscore"], "fscore_threshold_cm": 100 * m.fscore_threshold,
+        "mesh_vertices": int(len(mesh.vertices)), "gt_points_visible": int(len(gt_pts)),
+        "views": int(len(ev.poses)),
+    }
+    return metrics, first, trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+
+
+def evaluate_run(run_dir: str | Path, lpips_weights: str | None = None) -> dict:
+    """Evaluate `run_dir` (a finished flight), write eval.json, mesh.ply, novel_view.npz; return metrics."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "map.ply").is_file():
+        raise FlightReconError(f"{run_dir} has no map.ply: is the run finished?")
+    cfg = load_config(run_dir / "config.toml")
+    ev, gt_mesh = evaluation_set_for(cfg)
+    lpips = LpipsMetric(lpips_weights if lpips_weights is not None else cfg.metrics.lpips_weights)
+    metrics, first, mesh = evaluate_map(load_map(run_dir / "map.ply"), cfg, ev, gt_mesh, lpips)
+    metrics["model_mb"] = (run_dir / "map.ply").stat().st_size / 1e6
+    with atomic_path(run_dir / "mesh.ply") as tmp:
+        mesh.export(str(tmp), file_type="ply")
+    with atomic_path(run_dir / "novel_view.npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **first)
+    write_json(run_dir / "eval.json", metrics)
+    return metrics
