@@ -5,12 +5,14 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from flightrecon.cli import main as cli_main
 from flightrecon.geometry import intrinsics
 from flightrecon.scene import load_scene
 
 
+@pytest.mark.slow
 def test_make_then_info_describes_the_written_scene(tmp_path, capsys):
     assert cli_main(["scene", "make", "room2", "--out", str(tmp_path / "room2")]) == 0
     capsys.readouterr()
@@ -28,6 +30,7 @@ def test_make_then_info_describes_the_written_scene(tmp_path, capsys):
     assert "free volume" in text and "vertex colors" in text
 
 
+@pytest.mark.slow
 def test_tour_writes_rgbd_views(tmp_path):
     import cv2
 
