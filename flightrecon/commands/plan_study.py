@@ -182,7 +182,8 @@ def _figure(path: Path, rows: list[dict], scene_name: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    flown = any("tracking_err_max_m" in r for r in rows)
+    fig, axes = plt.subplots(1, 4 if flown else 3, figsize=(20 if flown else 15, 4.2))
     groups: dict = {}
     for r in rows:
         groups.setdefault((r["library"], r["max_yaw_rate_deg"], r["max_vel"], r["max_acc"]), []).append(r)
@@ -193,9 +194,14 @@ def _figure(path: Path, rows: list[dict], scene_name: str) -> None:
         axes[0].plot([r["safety_margin"] for r in rs], [100 * r["share_feasible"] for r in rs], "o-", label=label)
         axes[1].plot([r["safety_margin"] for r in rs], [r["duration_median_s"] for r in rs], "o-", label=label)
         axes[2].plot([r["safety_margin"] for r in rs], [r["plan_ms_median"] for r in rs], "o-", label=label)
+        if flown:
+            axes[3].plot([r["safety_margin"] for r in rs], [100 * r["tracking_err_max_m"] for r in rs], "o-",
+                         label=label)
     axes[0].set_ylabel("feasible candidates (%)")
     axes[1].set_ylabel("median trajectory duration (s)")
     axes[2].set_ylabel("library check (ms, median)")
+    if flown:
+        axes[3].set_ylabel("max tracking error when flown (cm)")
     for ax in axes:
         ax.set_xlabel("safety margin (m)")
         ax.grid(alpha=0.3)
