@@ -265,19 +265,22 @@ class VoxelMap:
         self.touched |= (occ_w > 0) | (free_w > 0)
         self.logodds = (self.logodds + delta.float()).clamp(-4.5, 4.5)
 
-    def visible_unexplored(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> int:
-        """Unexplored voxels seen from a camera: along its pixel rays up to 5 m, before the first
-        occupied voxel (rendered at the given resolution)."""
-        rays = torch.as_tensor(pixel_rays(width, height, K).reshape(-1, 3))
-        dirs = torch.nn.functional.normalize(rays @ torch.as_tensor(T_wc[:3, :3]).T, dim=-1)
+    def visible_unexplored(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
+        """Unexplored voxels seen from each camera T_wc [C,4,4]: along its pixel rays (at the given
+        resolution) up to 5 m, before the first occupied voxel. Returns counts [C]."""
+        T = torch.as_tensor(np.asarray(T_wc, float))
+        rays = torch.nn.functional.normalize(torch.as_tensor(pixel_rays(width, height, K).reshape(-1, 3)), dim=-1)
         steps = torch.arange(0.5, EXPLORE_RANGE / (self.voxel / 2)) * (self.voxel / 2)
-        pts = torch.as_tensor(T_wc[:3, 3]) + dirs[:, None, :] * steps[None, :, None]
+        dirs = torch.einsum("cij,rj->cri", T[:, :3, :3], rays)  # [C,R,3]
+        pts = T[:, None, None, :3, 3] + dirs[:, :, None, :] * steps[None, None, :, None]  # [C,R,S,3]
         idx = self.index(pts)
-        occ = torch.where(idx >= 0, self.logodds[idx.clamp_min(0)] >= self.OCC, False)
-        blocked = torch.cumsum(occ.int(), 1) - occ.int() > 0
-        seen = (idx >= 0) & ~blocked
-        unexplored = seen & ~self.touched[idx.clamp_min(0)]
-        return int(torch.unique(idx[unexplored]).numel())
+        safe = idx.clamp_min(0)
+        occ = (idx >= 0) & (self.logodds[safe] >= self.OCC)
+        blocked = (torch.cumsum(occ.int(), -1) - occ.int()) > 0
+        unexplored = (idx >= 0) & ~blocked & ~self.touched[safe]
+        cam = torch.arange(T.shape[0])[:, None, None].expand_as(idx)
+        keys = torch.unique(cam[unexplored] * self.size + idx[unexplored])
+        return torch.bincount(keys // self.size, minlength=T.shape[0]).numpy()
 
     @property
     def size(self) -> int:
@@ -337,8 +340,11 @@ class ActiveGSSelector(_Scoring):
     def utilities(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
         """U = 1000 U_explore + U_exploit per candidate (before normalization and path term)."""
         K = self.K_score.numpy().astype(float)
-        explore = np.array([self.voxels.visible_unexplored(T, K, self.width, self.height) for T in poses],
-                           float) / self.voxels.size if self.voxels is not None else np.zeros(len(poses))
+        explore = np.zeros(len(poses))
+        if self.voxels is not None:
+            for s in range(0, len(poses), 16):
+                explore[s:s + 16] = self.voxels.visible_unexplored(poses[s:s + 16], K, self.width, self.height)
+            explore /= self.voxels.size
         exploit = np.zeros(len(poses))
         if len(mapper.map):
             dev = mapper.device

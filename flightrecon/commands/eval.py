@@ -1,0 +1,56 @@
+"""`flightrecon eval`: evaluate finished runs, or write the scenes' evaluation viewpoints.
+
+`flightrecon eval RUN_DIR...` computes the rendering metrics (PSNR, SSIM, LPIPS with local weights
+only, depth L1, normal angle error) and mesh metrics (TSDF mesh of the map; Accuracy, Completion,
+Chamfer, F-score against the visible ground truth) and the model size, writing eval.json and
+mesh.ply into each run folder. `flightrecon eval --views SCENARIO [--scenes ...]` writes the fixed
+evaluation viewpoints of each scene to scenarios/eval_views/<scene>.json for sharing and inspection.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from flightrecon.errors import FlightReconError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("eval", help="rendering and mesh metrics of finished runs; --views writes evaluation viewpoints")
+    p.add_argument("run_dirs", nargs="*", help="run folders (with config.toml and map.ply)")
+    p.add_argument("--lpips-weights", default=None, help="local LPIPS weights file (never downloaded)")
+    p.add_argument("--views", metavar="SCENARIO", default=None,
+                   help="write the evaluation viewpoints of the scenario's scene(s) instead")
+    p.add_argument("--scenes", nargs="+", default=None, help="with --views: these scenes (default: the scenario's)")
+    p.add_argument("--out", default=None, help="with --views: output folder (default scenarios/eval_views)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="with --views: override a config value (repeatable)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.views:
+        return _write_views(args)
+    if not args.run_dirs:
+        raise FlightReconError("eval needs RUN_DIR(s) or --views SCENARIO")
+    from flightrecon.evaluation.run_eval import evaluate_run
+
+    for d in args.run_dirs:
+        m = evaluate_run(d, args.lpips_weights)
+        print(f"{d}: {json.dumps(m)}")
+    return 0
+
+
+def _write_views(args: argparse.Namespace) -> int:
+    from flightrecon.config import load_config
+    from flightrecon.evaluation.run_eval import evaluation_set_for
+    from flightrecon.evaluation.view_store import VIEWS_DIR, save_views, views_path
+
+    base = load_config(args.views, args.overrides)
+    for scene in args.scenes or [base.scene.name]:
+        cfg = load_config(args.views, args.overrides + [f"scene.name={scene}"])
+        ev, _ = evaluation_set_for(cfg)
+        path = save_views(views_path(scene, args.out or VIEWS_DIR), scene, ev.poses, ev.K, ev.width, ev.height,
+                          cfg.evaluation.seed)
+        print(f"{path}: {len(ev.poses)} views")
+    return 0

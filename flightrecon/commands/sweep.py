@@ -1,0 +1,51 @@
+"""`flightrecon sweep`: the paper's experiments as one command (flights, evaluation, tables, figures).
+
+Runs every (scene, method, seed) of a scenario into <run_root>/<scenario>/<scene>/<method>/seed<k>/
+(finished runs are skipped, killed ones resumed from their checkpoint), evaluates each (rendering
+and mesh metrics, flightrecon.evaluation.run_eval), then writes the tables and figures to
+<run_root>/<scenario>/report/ (or --report). All methods share our mapper, planner and candidate
+library, so the comparison isolates the selection criterion.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from flightrecon.scene.procedural import SCENE_NAMES
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("sweep", help="run scenes x methods x seeds, evaluate, write the paper's tables and figures")
+    p.add_argument("--scenario", default="default", help="scenario TOML path or name in scenarios/ (default: default)")
+    p.add_argument("--scenes", nargs="+", default=list(SCENE_NAMES), help="scene names (default: the eight)")
+    p.add_argument("--methods", nargs="+", default=["gaussmi2d", "activegs", "gaussmi", "fisherrf"],
+                   help="selector names (selector.method values)")
+    p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per scene and method (default 3)")
+    p.add_argument("--jobs", type=int, default=1, help="runs in parallel (default 1)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local process pool, or a Ray cluster (--ray-address; default a local instance)")
+    p.add_argument("--ray-address", default=None, help="address of a running Ray cluster")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config value for every run (repeatable)")
+    p.add_argument("--run-root", default=None, help="root folder of the runs (default: output.run_root)")
+    p.add_argument("--report", default=None, help="where tables and figures go (default: <root>/<scenario>/report)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from flightrecon.errors import FlightReconError
+    from flightrecon.evaluation.report import collect, write_figures, write_tables
+    from flightrecon.evaluation.sweep import execute, plan_runs
+
+    if args.seeds < 1 or args.jobs < 1:
+        raise FlightReconError("sweep: --seeds and --jobs must be at least 1")
+    specs = plan_runs(args.scenario, args.scenes, args.methods, args.seeds, args.overrides, args.run_root)
+    execute(specs, args.jobs, args.executor, args.ray_address, log=lambda s: print(s, flush=True))
+    report = Path(args.report) if args.report else specs[0].run_dir.parents[2] / "report"
+    recs = collect([s.run_dir for s in specs])
+    files = write_tables(recs, report) + write_figures(recs, report)
+    print((report / "overall.md").read_text())
+    print((report / "efficiency.md").read_text())
+    print(f"{len(files)} files in {report}")
+    return 0

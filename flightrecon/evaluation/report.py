@@ -1,0 +1,242 @@
+"""The paper's tables and figures from a sweep's run folders.
+
+Tables (each as .md, .csv and .tex): `overall` (per method, mean over scenes and seeds, as the
+paper's Table "Overall Evaluation Results"), `per_scene` (PSNR, D-L1, F-score per method and
+scene), `efficiency` (per-candidate evaluation time, selector update time, model size).
+Per-candidate time = total scoring time / total feasible candidates scored, from frames.csv
+(t_score, n_feasible) over the steps that scored more than one candidate.
+
+Figures (PNG): quality over collected frames (PSNR and depth L1 of the evaluation views, which the
+loop records every `evaluation.every` frames; mean with min-max spread across seeds, averaged over
+scenes; mesh accuracy is computed on the final map only, since a TSDF + mesh evaluation per
+recorded frame would cost more than the flight), per-candidate time over frames, quality versus
+per-candidate time labelled with model size, and novel-view grids (color, depth, normal) of the
+first scene's first seed annotated with PSNR, depth L1 and mean normal angle error.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from flightrecon.fileio import atomic_path, write_text
+
+OVERALL = [("psnr", "PSNR", "up", 2), ("ssim", "SSIM", "up", 3), ("lpips", "LPIPS", "down", 3),
+           ("depth_l1_cm", "D-L1 [cm]", "down", 2), ("accuracy_cm", "Acc [cm]", "down", 2),
+           ("completion_cm", "Comp [cm]", "down", 2), ("chamfer_cm", "CD [cm]", "down", 2),
+           ("fscore", "F-score", "up", 3)]
+PER_SCENE = [("psnr", "PSNR"), ("depth_l1_cm", "D-L1"), ("fscore", "F-score")]
+
+
+def _read_frames(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _num(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def collect(run_dirs: list[Path]) -> list[dict]:
+    """One record per finished run: its identity, eval.json, efficiency and per-frame series."""
+    recs = []
+    for d in run_dirs:
+        d = Path(d)
+        if not (d / "eval.json").is_file():
+            continue
+        ev = json.loads((d / "eval.json").read_text())
+        met = json.loads((d / "metrics.json").read_text())
+        rows = _read_frames(d / "frames.csv")
+        scored = [(_num(r["t_score"]), _num(r["n_feasible"])) for r in rows if _num(r.get("n_feasible")) > 1]
+        n_cand = sum(n for _, n in scored)
+        recs.append({
+            "dir": d, "scene": d.parent.parent.name, "method": met["method"], "seed": met["seed"], **ev,
+            "ms_per_candidate": 1000 * sum(t for t, _ in scored) / n_cand if n_cand else math.nan,
+            "ms_update": 1000 * met["mean_times_s"].get("t_select_update", math.nan),
+            "s_per_frame": met["wall_time_s"] / max(1, met["frames"]), "frames": met["frames"],
+            "series": {k: np.array([_num(r.get(k)) for r in rows]) for k in
+                       ("eval_psnr", "eval_depth_l1_cm", "t_score", "n_feasible")},
+        })
+    return recs
+
+
+def _mean(vals) -> float:
+    v = [x for x in (_num(a) for a in vals) if not math.isnan(x)]
+    return float(np.mean(v)) if v else math.nan
+
+
+def _fmt(v: float, digits: int) -> str:
+    return "n/a" if math.isnan(v) else f"{v:.{digits}f}"
+
+
+def _methods(recs: list[dict]) -> list[str]:
+    return sorted({r["method"] for r in recs}, key=lambda m: (m != "gaussmi2d", m))
+
+
+def _write_table(out: Path, name: str, header: list[str], rows: list[list[str]], caption: str) -> list[Path]:
+    md = "| " + " | ".join(header) + " |\n|" + "---|" * len(header) + "\n"
+    md += "".join("| " + " | ".join(r) + " |\n" for r in rows)
+    buf = io.StringIO()
+    w = csv.writer(buf)
+    w.writerow(header)
+    w.writerows(rows)
+    esc = lambda s: s.replace("_", r"\_").replace("%", r"\%")  # noqa: E731
+    tex = ("\\begin{table}[t]\n\\centering\n\\caption{" + esc(caption) + "}\n\\begin{tabular}{l"
+           + "c" * (len(header) - 1) + "}\n\\toprule\n" + " & ".join(esc(h) for h in header) + " \\\\\n\\midrule\n"
+           + "".join(" & ".join(esc(c) for c in r) + " \\\\\n" for r in rows)
+           + "\\bottomrule\n\\end{tabular}\n\\end{table}\n")
+    paths = [out / f"{name}.md", out / f"{name}.csv", out / f"{name}.tex"]
+    for p, text in zip(paths, (f"**{caption}**\n\n" + md, buf.getvalue(), tex)):
+        write_text(p, text)
+    return paths
+
+
+def write_tables(recs: list[dict], out: Path) -> list[Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    methods = _methods(recs)
+    scenes = sorted({r["scene"] for r in recs})
+    seeds = sorted({r["seed"] for r in recs})
+    note = f"{len(scenes)} scene(s), {len(seeds)} seed(s)"
+    rows = []
+    for m in methods:
+        mine = [r for r in recs if r["method"] == m]
+        rows.append([m] + [_fmt(_mean(r[k] for r in mine), dg) for k, _, _, dg in OVERALL])
+    paths = _write_table(out, "overall", ["Method"] + [h for _, h, _, _ in OVERALL], rows,
+                         f"Overall evaluation results (mean over {note})")
+    rows = []
+    for m in methods:
+        for k, h in PER_SCENE:
+            rows.append([m, h] + [_fmt(_mean(r[k] for r in recs if r["method"] == m and r["scene"] == s),
+                                       3 if k == "fscore" else 2) for s in scenes])
+    paths += _write_table(out, "per_scene", ["Method", "Metric"] + scenes, rows,
+                          f"Per-scene evaluation results (mean over {len(seeds)} seed(s))")
+    rows = []
+    for m in methods:
+        mine = [r for r in recs if r["method"] == m]
+        rows.append([m, _fmt(_mean(r["ms_per_candidate"] for r in mine), 2),
+                     _fmt(_mean(r["ms_update"] for r in mine), 1), _fmt(_mean(r["model_mb"] for r in mine), 2),
+                     _fmt(_mean(r["s_per_frame"] for r in mine), 2)])
+    paths += _write_table(out, "efficiency", ["Method", "Per-candidate [ms]", "Selector update [ms]",
+                                              "Model [MB]", "Wall time per frame [s]"], rows,
+                          f"Efficiency (mean over {note}; CPU, this machine)")
+    return paths
+
+
+def _curve(recs: list[dict], key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Frames, mean, min, max across seeds of the scene-averaged series (NaN rows dropped)."""
+    by_seed: dict = {}
+    for r in recs:
+        by_seed.setdefault(r["seed"], []).append(r["series"][key])
+    n = min(len(s) for ss in by_seed.values() for s in ss)
+    per_seed = np.array([np.nanmean(np.stack([s[:n] for s in ss]), 0) for ss in by_seed.values()])
+    frames = np.arange(n)
+    ok = np.isfinite(per_seed).all(0)
+    return frames[ok], per_seed.mean(0)[ok], per_seed.min(0)[ok], per_seed.max(0)[ok]
+
+
+def write_figures(recs: list[dict], out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    methods = _methods(recs)
+    paths = []
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for ax, (key, label) in zip(axes, (("eval_psnr", "PSNR [dB]"), ("eval_depth_l1_cm", "Depth L1 [cm]"))):
+        for m in methods:
+            f, mean, lo, hi = _curve([r for r in recs if r["method"] == m], key)
+            ax.plot(f + 1, mean, marker="o", ms=3, label=m)
+            ax.fill_between(f + 1, lo, hi, alpha=0.2)
+        ax.set_xlabel("collected frames")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("Evaluation-view quality over collected frames (mean, min-max across seeds)", fontsize=9)
+    paths.append(_save(fig, out / "quality_over_frames.png", plt))
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.6))
+    positive = False
+    for m in methods:
+        mine = [r for r in recs if r["method"] == m]
+        n = min(len(r["series"]["t_score"]) for r in mine)
+        with warnings.catch_warnings():  # steps where no method scored are all-NaN columns
+            warnings.simplefilter("ignore", RuntimeWarning)
+            ms = np.nanmean(np.stack([1000 * r["series"]["t_score"][:n] / np.where(r["series"]["n_feasible"][:n] > 1,
+                                                                                 r["series"]["n_feasible"][:n], np.nan)
+                                      for r in mine]), 0)
+        ok = np.isfinite(ms) & (ms > 0)
+        positive |= bool(ok.any())
+        ax.plot(np.arange(n)[ok] + 1, ms[ok], marker="o", ms=3, label=m)
+    ax.set_xlabel("collected frames")
+    ax.set_ylabel("per-candidate evaluation [ms]")
+    if positive:
+        ax.set_yscale("log")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    paths.append(_save(fig, out / "candidate_time_over_frames.png", plt))
+
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    xs = []
+    for m in methods:
+        mine = [r for r in recs if r["method"] == m]
+        x, y, mb = (_mean(r[k] for r in mine) for k in ("ms_per_candidate", "psnr", "model_mb"))
+        xs.append(x)
+        ax.scatter([x], [y], s=60)
+        ax.annotate(f"{m}\n{mb:.2f} MB", (x, y), fontsize=8, xytext=(5, 5), textcoords="offset points")
+    ax.set_xlabel("per-candidate evaluation [ms]")
+    ax.set_ylabel("PSNR [dB]")
+    if all(np.isfinite(x) and x > 0 for x in xs):
+        ax.set_xscale("log")
+    ax.grid(alpha=0.3)
+    paths.append(_save(fig, out / "quality_vs_time.png", plt))
+
+    paths.append(_novel_view_grid(recs, methods, out / "novel_views.png", plt))
+    return paths
+
+
+def _novel_view_grid(recs: list[dict], methods: list[str], path: Path, plt) -> Path:
+    scene = sorted({r["scene"] for r in recs})[0]
+    rows = []
+    for m in methods:
+        mine = sorted((r for r in recs if r["method"] == m and r["scene"] == scene), key=lambda r: r["seed"])
+        if mine and (mine[0]["dir"] / "novel_view.npz").is_file():
+            rows.append((m, dict(np.load(mine[0]["dir"] / "novel_view.npz"))))
+    fig, axes = plt.subplots(len(rows) + 1, 3, figsize=(9, 2.4 * (len(rows) + 1)), squeeze=False)
+    if rows:
+        gt = rows[0][1]
+        vmax = float(np.nanmax(gt["gt_depth"])) or 1.0
+        _panel(axes[0, 0], gt["gt_rgb"], "ground truth color")
+        _panel(axes[0, 1], gt["gt_depth"], "ground truth depth", vmax=vmax)
+        axes[0, 2].axis("off")
+        for i, (m, v) in enumerate(rows, start=1):
+            _panel(axes[i, 0], np.clip(v["rgb"], 0, 1), f"{m}: PSNR {float(v['psnr']):.2f} dB")
+            _panel(axes[i, 1], v["depth"], f"depth L1 {float(v['depth_l1_cm']):.2f} cm", vmax=vmax)
+            _panel(axes[i, 2], 0.5 * (1 - v["normal"]), f"normal err {float(v['normal_err_deg']):.1f} deg")
+    fig.suptitle(f"Novel view (scene {scene}, evaluation view 0)", fontsize=9)
+    return _save(fig, path, plt)
+
+
+def _panel(ax, img, title, vmax=None):
+    ax.imshow(img, cmap="viridis" if img.ndim == 2 else None, vmin=0 if vmax else None, vmax=vmax)
+    ax.set_title(title, fontsize=8)
+    ax.axis("off")
+
+
+def _save(fig, path: Path, plt) -> Path:
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return path

@@ -1,0 +1,132 @@
+"""Run every (scene, method, seed) of a sweep: fly, evaluate, skip what is done, resume what was killed.
+
+Run folders: <output.run_root>/<scenario>/<scene>/<method>/seed<k>/ (the scene level keeps the
+eight scenes of one scenario apart). A run is finished when its eval.json exists; a run with a
+map.ply but no eval.json is only evaluated; a run with a checkpoint continues with
+`Mission.resume`. Executors: `local` (a process pool of `jobs` workers, inline when jobs = 1) or
+`ray` (the same task on a Ray cluster, local or `ray_address`).
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+
+from flightrecon.config import load_config
+from flightrecon.errors import FlightReconError
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    scenario: str
+    scene: str
+    method: str
+    seed: int
+    overrides: tuple[str, ...]
+    run_root: str
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.run_root) / Path(self.scenario).stem / self.scene / self.method / f"seed{self.seed}"
+
+    def config(self):
+        return load_config(self.scenario, list(self.overrides) + [
+            f"scene.name={self.scene}", f"selector.method={self.method}", f"seed={self.seed}",
+            "output.record=false"])
+
+
+def plan_runs(scenario: str, scenes: list[str], methods: list[str], seeds: int, overrides: list[str],
+              run_root: str | None = None) -> list[RunSpec]:
+    """Every combination, with config errors raised now (before anything runs)."""
+    base = load_config(scenario, overrides)
+    root = run_root or base.output.run_root
+    specs = [RunSpec(scenario, sc, m, k, tuple(overrides), root) for sc in scenes for m in methods
+             for k in range(seeds)]
+    from flightrecon.active.selectors import SELECTORS
+
+    for s in specs:
+        s.config()
+        if s.method not in SELECTORS:
+            raise FlightReconError(f"sweep: unknown method {s.method!r} (available: {', '.join(sorted(SELECTORS))})")
+    return specs
+
+
+def status(spec: RunSpec) -> str:
+    d = spec.run_dir
+    if (d / "eval.json").is_file():
+        return "done"
+    if (d / "metrics.json").is_file() and (d / "map.ply").is_file():
+        return "evaluate"
+    if (d / "checkpoint.pkl").is_file():
+        return "resume"
+    return "new"
+
+
+def run_one(spec: RunSpec, threads: int = 0) -> tuple[str, str]:
+    """Bring one run to 'done'; returns (run folder, what was done)."""
+    if threads > 0:
+        import torch
+
+        torch.set_num_threads(threads)
+    from flightrecon.evaluation.run_eval import evaluate_run
+    from flightrecon.mission import Mission
+
+    state = status(spec)
+    if state == "done":
+        return str(spec.run_dir), "skipped (finished)"
+    if state in ("new", "resume"):
+        mission = (Mission.resume(spec.run_dir, progress=False) if state == "resume"
+                   else Mission(spec.config(), spec.run_dir, progress=False))
+        mission.run()
+    evaluate_run(spec.run_dir)
+    return str(spec.run_dir), {"new": "flown and evaluated", "resume": "resumed and evaluated",
+                               "evaluate": "evaluated"}[state]
+
+
+def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_address: str | None = None,
+            log=print) -> list[tuple[str, str]]:
+    """Run the specs; finished runs are skipped without starting a worker."""
+    todo = [s for s in specs if status(s) != "done"]
+    done = [(str(s.run_dir), "skipped (finished)") for s in specs if status(s) == "done"]
+    for d, what in done:
+        log(f"{d}: {what}")
+    threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
+    if not todo:
+        return done
+    if executor == "ray":
+        return done + _execute_ray(todo, threads, ray_address, log)
+    if jobs <= 1:
+        out = []
+        for s in todo:
+            out.append(run_one(s))
+            log(f"{out[-1][0]}: {out[-1][1]}")
+        return done + out
+    out = []
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+        for r in pool.map(run_one, todo, [threads] * len(todo)):
+            out.append(r)
+            log(f"{r[0]}: {r[1]}")
+    return done + out
+
+
+def _execute_ray(todo: list[RunSpec], threads: int, address: str | None, log) -> list[tuple[str, str]]:
+    try:
+        import ray
+    except ImportError:
+        raise FlightReconError("--executor ray needs the 'ray' package (pip install ray)") from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    try:
+        task = ray.remote(num_cpus=threads)(run_one)
+        out = []
+        for r in ray.get([task.remote(s, threads) for s in todo]):
+            out.append(tuple(r))
+            log(f"{r[0]}: {r[1]}")
+        return out
+    finally:
+        if started:
+            ray.shutdown()
