@@ -84,7 +84,7 @@ class NullRecorder:
     def candidates(self, results, feasible, scores, chosen) -> None:
         pass
 
-    def flight(self, flown, chosen) -> None:
+    def flight(self, flown, chosen=None) -> None:
         pass
 
     def event(self, text: str) -> None:
@@ -108,12 +108,12 @@ def open_recorder(mission, live: bool = False) -> "Recorder | NullRecorder":
         mission.run_dir.mkdir(parents=True, exist_ok=True)
         sinks.append(rr.FileSink(str(_next_segment(mission.run_dir))))
     if live:
-        sinks.append(_live_sink(out.viewer_port, out.web_port))
+        sinks.append(_live_sink(out.viewer_port, out.web_port, mission.run_dir))
     stream.set_sinks(*sinks)
     return Recorder(mission, stream)
 
 
-def _live_sink(grpc_port: int, web_port: int):
+def _live_sink(grpc_port: int, web_port: int, run_dir: Path):
     """A native viewer when there is a display, else the web viewer (address printed)."""
     if has_display():
         rr.spawn(port=grpc_port, connect=False)
@@ -121,7 +121,7 @@ def _live_sink(grpc_port: int, web_port: int):
     sink = rr.GrpcServerSink(port=grpc_port)
     rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=sink.uri)
     print(f"no display: live web viewer at {web_viewer_address(web_port, grpc_port)} "
-          "(it stops when the flight ends; `flightrecon view RUN_DIR --web` replays the run)", flush=True)
+          f"(it stops when the flight ends; `flightrecon view {run_dir} --web` replays the run)", flush=True)
     return sink
 
 
@@ -142,6 +142,8 @@ class Recorder:
         logging.getLogger("flightrecon").addHandler(self._handler)
         self.rec.send_blueprint(default_blueprint())
         self._static()
+        if mission.state.frame == 0 and len(mission.flight.log):
+            self._poses(mission.flight.log.columns(), 0)  # the take-off
         self._at_frame()
         self.rec.log("events", rr.TextLog(f"recording from frame {mission.state.frame} at sim time "
                                           f"{mission.flight.time:.2f} s", level=rr.TextLogLevel.INFO))
@@ -250,32 +252,37 @@ class Recorder:
             rec.log("world/candidates/chosen", rr.Clear(recursive=False))
             rec.log("world/plan/chosen", rr.Clear(recursive=False))
 
-    def flight(self, flown, chosen) -> None:
-        """The flown segment: body pose and clearance over sim time, and the path at this frame."""
+    def flight(self, flown, chosen=None) -> None:
+        """The flown segment (of `chosen`, None: take-off or hover): body pose and clearance over sim
+        time, and the path at this frame, red where clearance fell below body radius + safety margin."""
         if not len(flown):
             return
         cols = flown.columns()
-        step = max(1, int(round(self.m.cfg.sim.control_rate_hz / self.out.record_pose_rate_hz)))
-        sel = np.unique(np.r_[np.arange(0, len(cols["t"]), step), len(cols["t"]) - 1])
-        t = cols["t"][sel]
-        pos = np.stack([cols["x"], cols["y"], cols["z"]], 1)
-        quat = np.stack([cols["qx"], cols["qy"], cols["qz"], cols["qw"]], 1)[sel]
-        times = [rr.TimeColumn("sim_time", duration=t),
-                 rr.TimeColumn("frame", sequence=np.full(len(t), self.m.state.frame))]
-        self.rec.send_columns("world/drone", indexes=times,
-                              columns=rr.Transform3D.columns(translation=pos[sel], quaternion=quat))
-        clear = cols["clearance"][sel]
-        ok = np.isfinite(clear)
-        if ok.any():
-            self.rec.send_columns("plots/clearance", indexes=[c for c in times],
-                                  columns=rr.Scalars.columns(scalars=np.where(ok, clear, np.nan)))
+        path, clear = self._poses(cols, self.m.state.frame + 1)
         self._at_frame()
-        path = pos[sel]
-        seg_clear = np.where(ok, clear, np.inf)
-        colors = np.where((seg_clear < self.m.cfg.planner.safety_margin + self.m.cfg.drone.body_radius)[:, None],
-                          np.array([230, 60, 40]), np.array([40, 180, 60]))
-        self.rec.log("world/flown", rr.LineStrips3D([path], radii=0.008, colors=[colors[0]]))
-        self.rec.log("world/flown/samples", rr.Points3D(path, radii=0.012, colors=colors.astype(np.uint8)))
+        near = np.nan_to_num(clear, nan=np.inf) < self.m.cfg.planner.safety_margin + self.m.cfg.drone.body_radius
+        colors = np.where(near[:, None], np.array([230, 60, 40]), np.array([40, 180, 60])).astype(np.uint8)
+        flown_s = float(cols["t"][-1] - cols["t"][0])
+        label = f"flown {flown_s:.1f} s" + ("" if chosen is None else f" (planned {chosen.duration:.1f} s)")
+        self.rec.log("world/flown", rr.LineStrips3D([path], radii=0.008, colors=[(40, 180, 60)], labels=[label]))
+        self.rec.log("world/flown/samples", rr.Points3D(path, radii=0.012, colors=colors))
+
+    def _poses(self, cols: dict, frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """Body pose and clearance at `record_pose_rate_hz` of sim time; on the frame timeline they
+        belong to `frame`, the capture the flight leads to, so frame k shows the drone at capture k."""
+        n = len(cols["t"])
+        step = max(1, int(round(self.m.cfg.sim.control_rate_hz / self.out.record_pose_rate_hz)))
+        sel = np.unique(np.r_[np.arange(0, n, step), n - 1])
+        pos = np.stack([cols["x"], cols["y"], cols["z"]], 1)[sel]
+        quat = np.stack([cols["qx"], cols["qy"], cols["qz"], cols["qw"]], 1)[sel]
+        clear = cols["clearance"][sel]
+        times = [rr.TimeColumn("sim_time", duration=cols["t"][sel]),
+                 rr.TimeColumn("frame", sequence=np.full(len(sel), frame))]
+        self.rec.send_columns("world/drone", indexes=times,
+                              columns=rr.Transform3D.columns(translation=pos, quaternion=quat))
+        if np.isfinite(clear).any():
+            self.rec.send_columns("plots/clearance", indexes=times, columns=rr.Scalars.columns(scalars=clear))
+        return pos, clear
 
     def event(self, text: str) -> None:
         self._at_frame()
@@ -312,13 +319,18 @@ class _WarningsToEvents(logging.Handler):
 
 
 def default_blueprint() -> rrb.Blueprint:
-    """3D view on the left; camera and rendered images, plots and the event log on the right."""
-    past = rrb.VisibleTimeRange("frame", start=rrb.TimeRangeBoundary.infinite(),
-                                end=rrb.TimeRangeBoundary.cursor_relative())
+    """3D view on the left; camera and rendered images, plots and the event log on the right.
+
+    The flown path accumulates (every past frame up to the time cursor, on either timeline);
+    everything else shows the latest state. The reliability-colored map is in the view but hidden:
+    toggle its eye in the blueprint panel (and hide world/map/splats) to switch coloring."""
+    past = rrb.VisibleTimeRanges([
+        rrb.VisibleTimeRange(tl, start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative())
+        for tl in ("frame", "sim_time")])
     view3d = rrb.Spatial3DView(
         origin="world", name="flight",
-        contents=["+ $origin/**", "- $origin/map/reliability"],
-        time_ranges=past)
+        overrides={"world/flown": past, "world/flown/samples": past,
+                   "world/map/reliability": rrb.EntityBehavior(visible=False)})
     images = rrb.Grid(
         rrb.Spatial2DView(origin="world/camera", contents=["+ $origin/image"], name="captured color"),
         rrb.Spatial2DView(origin="world/camera", contents=["+ $origin/depth"], name="captured depth"),
@@ -339,7 +351,7 @@ def default_blueprint() -> rrb.Blueprint:
     return rrb.Blueprint(
         rrb.Horizontal(view3d, rrb.Vertical(images, plots, rrb.TextLogView(origin="events", name="events"),
                                             row_shares=[3, 2, 1]), column_shares=[3, 2]),
-        rrb.TimePanel(state="expanded"),
+        rrb.TimePanel(state="expanded", timeline="frame"),
         collapse_panels=False)
 
 
