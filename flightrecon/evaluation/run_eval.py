@@ -89,6 +89,11 @@ def normal_angle_error_deg(normal: torch.Tensor, depth_gt: torch.Tensor, K: np.n
     return float(torch.rad2deg(torch.acos(cos[ok])).mean())
 
 
+def _nanmean(values: list[float]) -> float:
+    v = [x for x in values if not np.isnan(x)]
+    return float(np.mean(v)) if v else float("nan")
+
+
 def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, ev: EvaluationSet, gt_mesh: trimesh.Trimesh,
                  lpips: LpipsMetric) -> tuple[dict, dict, trimesh.Trimesh]:
     """(metrics, first-view renders, TSDF mesh) of a map on the evaluation views."""
@@ -123,7 +128,7 @@ def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, ev: EvaluationSet, gt_m
     metrics = {
         "psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)),
         "lpips": float(np.mean(lp)) if lp else "n/a", "lpips_note": lpips.reason,
-        "depth_l1_cm": float(np.mean(dl)), "normal_err_deg": float(np.nanmean(na)),
+        "depth_l1_cm": float(np.mean(dl)), "normal_err_deg": _nanmean(na),
         "accuracy_cm": 100 * geo["accuracy"], "completion_cm": 100 * geo["completion"],
         "chamfer_cm": 100 * geo["chamfer"], "precision": geo["precision"], "recall": geo["recall"],
         "fscore": geo["fscore"], "fscore_threshold_cm": 100 * m.fscore_threshold,

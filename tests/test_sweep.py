@@ -1,0 +1,46 @@
+"""A mini sweep (two methods, one small scene, one seed, a few frames) end to end: real flights,
+evaluation, every table and figure file; a second run skips the finished runs."""
+
+import json
+
+import pytest
+
+from flightrecon.evaluation.report import collect, write_figures, write_tables
+from flightrecon.evaluation.sweep import execute, plan_runs, status
+
+TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
+        "mapper.k_new=5", "mapper.k_replay=2", "budget.frames=3", "budget.initial_views=1",
+        "evaluation.views=2", "evaluation.every=1", "metrics.tsdf_voxel=0.05", "metrics.tsdf_truncation=0.15",
+        "metrics.sample_points=5000"]
+
+TABLES = [f"{t}.{ext}" for t in ("overall", "per_scene", "efficiency") for ext in ("md", "csv", "tex")]
+FIGURES = ["quality_over_frames.png", "candidate_time_over_frames.png", "quality_vs_time.png", "novel_views.png"]
+
+
+@pytest.mark.slow
+def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_path):
+    specs = plan_runs("demo", ["room0"], ["gaussmi2d", "random"], 1, TINY, str(tmp_path))
+    assert [s.run_dir.relative_to(tmp_path).as_posix() for s in specs] == [
+        "demo/room0/gaussmi2d/seed0", "demo/room0/random/seed0"]
+    first = execute(specs, log=lambda s: None)
+    assert [what for _, what in first] == ["flown and evaluated"] * 2
+    for s in specs:
+        ev = json.loads((s.run_dir / "eval.json").read_text())
+        assert ev["lpips"] == "n/a" and 0 <= ev["fscore"] <= 1 and ev["model_mb"] > 0
+        assert (s.run_dir / "mesh.ply").is_file()
+    report = tmp_path / "report"
+    recs = collect([s.run_dir for s in specs])
+    files = write_tables(recs, report) + write_figures(recs, report)
+    assert sorted(p.name for p in files) == sorted(TABLES + FIGURES)
+    for name in FIGURES:
+        assert (report / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    overall = (report / "overall.md").read_text()
+    assert "| gaussmi2d |" in overall and "| random |" in overall
+    assert all(status(s) == "done" for s in specs)
+    again = execute(specs, log=lambda s: None)
+    assert [what for _, what in again] == ["skipped (finished)"] * 2
+    # a flown but unevaluated run is only evaluated (its flight is not repeated)
+    (specs[1].run_dir / "eval.json").unlink()
+    frames_before = (specs[1].run_dir / "frames.csv").stat().st_mtime_ns
+    assert [what for _, what in execute(specs, log=lambda s: None)] == ["skipped (finished)", "evaluated"]
+    assert (specs[1].run_dir / "frames.csv").stat().st_mtime_ns == frames_before
