@@ -268,7 +268,8 @@ int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* op
     py[p] = S(y) + S(0.5);
     act[p] = (x < st.W && y < st.H) ? S(1) : S(0);
     T[p] = S(1);
-    accA[p] = accZ[p] = accM[p] = accM2[p] = medz[p] = S(0);
+    accA[p] = accZ[p] = accM[p] = accM2[p] = medz[p] = w[p] = S(0);
+    zz[p] = S(st.near);
     last[p] = 0;
     medj[p] = -1;
   }

@@ -231,6 +231,7 @@ def test_cutoff_covers_every_contributing_pixel():
     assert CUTOFF >= (2 * torch.log(torch.tensor(255.0))).sqrt().item()
 
 
+@pytest.mark.gpu
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="torch sees no CUDA device (gsplat backend)")
 def test_cuda_backend_agrees_on_fronto_parallel_splats():
     # gsplat blends center depths, so compare on fronto-parallel splats where they coincide.

@@ -82,6 +82,9 @@ def render(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Ten
     check_inputs(means, quats, log_scales, opacity_logits, features, viewmats, Ks, width, height,
                  near, far, outputs)
     name = resolve_backend(backend)
+    if name != "cuda" and any(t.is_cuda for t in (means, quats, log_scales, opacity_logits, features)):
+        raise FlightReconError(f"render: backend {name!r} needs CPU tensors, got CUDA ones "
+                               "(use backend='cuda' or move them with .cpu())")
     if name == "reference":
         from flightrecon.render.backend_reference import render_reference_backend as fn
     elif name == "cpu":

@@ -42,6 +42,14 @@ def _check_toolchain() -> None:
     if shutil.which(cxx) is None:
         raise FlightReconError(f"cannot build the C++ rasterizer: no C++ compiler ({cxx!r}) on PATH; "
                                "install g++ (e.g. apt-get install g++) or set CXX")
+    if shutil.which("ninja") is None:
+        # pip's ninja lives in the environment's bin dir, which is not on PATH when the venv's
+        # console script is called directly (the Makefile does that)
+        try:
+            import ninja
+            os.environ["PATH"] = ninja.BIN_DIR + os.pathsep + os.environ.get("PATH", "")
+        except ImportError:
+            pass
     from torch.utils.cpp_extension import is_ninja_available
     if not is_ninja_available():
         raise FlightReconError("cannot build the C++ rasterizer: ninja not found; pip install ninja")
