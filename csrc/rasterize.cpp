@@ -221,9 +221,10 @@ inline Hit<S> hit(const S* M, const Row<S>& r, S mx, S o, S x, S near) {
 // Packs the per-splat data of tile entries [e0, e1) contiguously (ray transform, means2d, opacity,
 // normal, the tile's pixel range, features), so the blend loops read sequential memory instead of
 // chasing splat ids through N-sized arrays; the gather's independent loads overlap in the CPU.
-constexpr int REC = 17;  // record length before the features
+constexpr int REC = 19;  // record length before the features
+constexpr int LANES = 8;  // column group: one AVX2 float vector; a splat visits only the groups its box covers
 template <typename S>
-void gather(const Projected<S>& P, const Bins& B, const S* opac, const S* feat, int D, int ty,
+void gather(const Projected<S>& P, const Bins& B, const S* opac, const S* feat, int D, int tx, int ty,
             int64_t e0, int64_t e1, std::vector<S>& rec) {
   const int R = REC + D;
   rec.resize(size_t(e1 - e0) * R);
@@ -238,6 +239,8 @@ void gather(const Projected<S>& P, const Bins& B, const S* opac, const S* feat, 
     const int* r = &P.rect[4 * size_t(i)];
     q[15] = S(std::max(r[1] - ty * TS, 0) * TS);
     q[16] = S((std::min(r[3] - ty * TS, TS - 1) + 1) * TS);
+    q[17] = S(std::max(r[0] - tx * TS, 0) / LANES);
+    q[18] = S(std::min(r[2] - tx * TS, TS - 1) / LANES + 1);
     for (int d = 0; d < D; ++d) q[REC + d] = feat[int64_t(i) * D + d];
   }
 }
@@ -282,14 +285,14 @@ int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* op
   for (int64_t jj = b0; jj < b1; ++jj) {
     if (((jj - b0) % CHUNK) == 0) {
       if (jj > b0 && std::none_of(row_alive, row_alive + TS, [](bool b) { return b; })) break;
-      gather(P, B, opac, feat, D, ty, jj, std::min(b1, jj + CHUNK), rec);
+      gather(P, B, opac, feat, D, tx, ty, jj, std::min(b1, jj + CHUNK), rec);
     }
     const S* q = &rec[size_t((jj - b0) % CHUNK) * R];
     const int p0 = int(q[15]), p1 = int(q[16]);
     const S* M = q;
     const S mx = q[9], my = q[10], o = q[11];
     const int32_t j = int32_t(jj - b0);
-    evals += p1 - p0;
+    const int c0 = int(q[17]) * LANES, c1 = int(q[18]) * LANES;
     int any = 0;
     for (int p00 = p0; p00 < p1; p00 += TS) {
     if (!row_alive[p00 / TS]) {  // every pixel of this row has terminated
@@ -297,9 +300,11 @@ int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* op
       continue;
     }
     const Row<S> rw = row_of(M, py[p00], my);
-    S alive = 0;
-#pragma omp simd reduction(| : any) reduction(+ : alive)
-    for (int p = p00; p < p00 + TS; ++p) {
+    for (int p = p00; p < p00 + TS; ++p) w[p] = S(0);
+    evals += c1 - c0;
+    for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
+#pragma omp simd reduction(| : any)
+    for (int p = pg; p < pg + LANES; ++p) {
       const Hit<S> h = hit(M, rw, mx, o, px[p], near);
       const S testT = T[p] * (S(1) - h.a);
       const bool ok = h.ok && act[p] != 0;
@@ -316,8 +321,10 @@ int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* op
       last[p] = blend ? j + 1 : last[p];
       accA[p] += wp;
       any |= int(blend);
-      alive += act[p];
     }
+    }
+    S alive = 0;
+    for (int p = p00; p < p00 + TS; ++p) alive += act[p];
     row_alive[p00 / TS] = alive != 0;
     }
     if (!any) continue;
@@ -508,7 +515,7 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
   const S mder = S(st.far * st.near / (st.far - st.near));
   const int64_t b0 = B.offsets[tile];
   std::vector<S> rec;
-  gather(P, B, opac, feat, D, ty, b0, b0 + maxlast, rec);
+  gather(P, B, opac, feat, D, tx, ty, b0, b0 + maxlast, rec);
   const int R = REC + D;
   for (int32_t j = 0; j < maxlast; ++j) {
     const int64_t jj = b0 + j;
@@ -519,6 +526,7 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
     const S mx = q[9], my = q[10], o = q[11];
     const S* f = q + REC;
     const S* nr = q + 12;
+    const int c0 = int(q[17]) * LANES, c1 = int(q[18]) * LANES;
 #pragma omp simd
     for (int p = p0; p < p1; ++p) s[p] = gA[p];
     for (int d = 0; d < D; ++d) {
@@ -544,8 +552,13 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
       continue;
     }
     const Row<S> rw = row_of(M, py[p00], my);
-#pragma omp simd reduction(+ : dO, o2, w2)
     for (int p = p00; p < p00 + TS; ++p) {
+      w[p] = S(0);
+      for (int e = 0; e < NG; ++e) gg[e][p] = S(0);
+    }
+    for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
+#pragma omp simd reduction(+ : dO, o2, w2)
+    for (int p = pg; p < pg + LANES; ++p) {
       const Hit<S> h = hit(M, rw, mx, o, px[p], near);
       const bool blend = h.ok && j < last[p];
       const S a = blend ? h.a : S(0);
@@ -587,6 +600,7 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
       w2 += wp * wp;
       w[p] = wp;
       T[p] = blend ? T[p] * (S(1) - a) : T[p];
+    }
     }
     }
     if (FISHER) {
