@@ -40,6 +40,7 @@ from flightrecon.mapping.ply import save_map
 from flightrecon.planning.distance_field import DistanceField
 from flightrecon.planning.feasibility import CandidateResult, Planner
 from flightrecon.planning.paths import seed_ompl
+from flightrecon.planning.poses import start_position, workspace_of
 from flightrecon.recording import NullRecorder, open_recorder
 from flightrecon.scene.source import scene_from_config
 from flightrecon.sim.camera import RGBDCamera
@@ -70,18 +71,11 @@ class MissionState:
 
 
 def flight_region(scene, cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(workspace box (2,3) for candidates, take-off point) from the scene's metadata or bounds.
-
-    Procedural scenes give their room box and spawn point; a real scan uses its bounds shrunk by the
-    drone's clearance and its center, which the user can move with the scene options."""
-    meta = scene.meta
-    box = np.asarray(meta.get("room_box", scene.bounds), float)
-    spawn = np.asarray(meta.get("spawn", [(box[0, 0] + box[1, 0]) / 2, (box[0, 1] + box[1, 1]) / 2, box[0, 2]]),
-                       float)
+    """(workspace box (2,3) for candidates, take-off point): the planner's workspace of the scene,
+    shrunk by the drone's required clearance, and the hover point above its spawn."""
     pad = cfg.drone.body_radius + cfg.planner.safety_margin
-    work = box + np.array([[pad, pad, pad], [-pad, -pad, -pad]])
-    start = spawn + np.array([0.0, 0.0, cfg.sim.takeoff_height])
-    return work, start
+    work = workspace_of(scene) + np.array([[pad], [-pad]])
+    return work, start_position(scene, cfg.sim.takeoff_height)
 
 
 class Mission:
