@@ -44,3 +44,13 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
     frames_before = (specs[1].run_dir / "frames.csv").stat().st_mtime_ns
     assert [what for _, what in execute(specs, log=lambda s: None)] == ["skipped (finished)", "evaluated"]
     assert (specs[1].run_dir / "frames.csv").stat().st_mtime_ns == frames_before
+
+
+@pytest.mark.slow
+def test_ray_executor_runs_the_same_sweep_on_a_local_ray_instance(tmp_path):
+    pytest.importorskip("ray", reason="the optional 'ray' package is not installed (pip install ray)")
+    specs = plan_runs("demo", ["room0"], ["random"], 1, TINY + ["budget.frames=2"], str(tmp_path))
+    out = execute(specs, jobs=1, executor="ray", log=lambda s: None)
+    assert out == [(str(specs[0].run_dir), "flown and evaluated")]
+    assert json.loads((specs[0].run_dir / "eval.json").read_text())["views"] == 2
+    assert execute(specs, executor="ray", log=lambda s: None) == [(str(specs[0].run_dir), "skipped (finished)")]

@@ -121,7 +121,7 @@ def _execute_ray(todo: list[RunSpec], threads: int, address: str | None, log) ->
     if started:
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
     try:
-        task = ray.remote(num_cpus=threads)(run_one)
+        task = ray.remote(num_cpus=1)(run_one)
         out = []
         for r in ray.get([task.remote(s, threads) for s in todo]):
             out.append(tuple(r))
