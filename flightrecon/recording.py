@@ -218,6 +218,11 @@ class Recorder:
         self._at_frame()
         rec = self.rec
         bad = [r for r in results if not r.feasible]
+        counts: dict[str, int] = {}
+        for r in bad:
+            counts[r.reason] = counts.get(r.reason, 0) + 1
+        rec.log("events", rr.TextLog(f"frame {self.m.state.frame}: {len(feasible)} of {len(results)} candidates "
+                                     f"feasible; infeasible by reason {counts}", level=rr.TextLogLevel.DEBUG))
         if bad:
             new = sorted({r.reason for r in bad} - set(self.reasons))
             for reason in new:
