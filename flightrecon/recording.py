@@ -8,26 +8,35 @@ generators), so a flight is the same with and without it.
 
 Timelines: `frame` (capture index) and `sim_time` (simulated seconds). Entities:
   world/scene                     decimated ground-truth mesh (static)
-  world/drone, world/drone/body   body pose at `pose_rate_hz` of sim time, arms and rotors (static)
+  world/drone, world/drone/body   body pose at `record_pose_rate_hz` of sim time; arms, rotors (static)
   world/camera                    estimated camera pose at each capture, pinhole (OpenCV axes),
   world/camera/image, /depth      captured color (JPEG) and depth (16-bit PNG, millimeters)
   rendered/color|depth|normal     the map rendered at the capture pose, after mapping the frame
   world/map/splats                splats as flat ellipsoids (1 sigma) in their color, every
-                                  `map_every` frames, at most `map_max_splats` of them
+                                  `record_map_every` frames, at most `record_map_max_splats` of them
   world/map/reliability           the same splats as points colored by front-side reliability
                                   (red 0 -> green 1); hidden in the default layout
   world/candidates/{feasible,infeasible,chosen}  arrows; feasible colored by score (blue low ->
                                   yellow high), infeasible gray by reason (a class per reason),
                                   chosen magenta with its score as label
   world/plan/chosen, world/plan/feasible  planned trajectories (chosen, and every feasible one)
-  world/flown                     flown path of each flight, colored by clearance
+  world/flown, world/flown/samples  flown path of each flight (accumulating in the default layout),
+                                  samples red where clearance < body radius + safety margin
   plots/...                       frame PSNR and depth L1, splats, scoring time, chosen MI,
                                   feasible count, clearance, evaluation PSNR
-  events                          the mission's event log (recoveries, contacts, warnings)
+  events                          the mission's event log (recoveries, contacts, flightrecon warnings)
+                                  and, at debug level, each step's candidate summary by reason
+
+Live (`fly --rerun`): a native viewer is spawned when there is a display; headless, rerun's web
+viewer is served and its address printed (it stops with the flight).
 
 Files: the first session writes `recording.rrd`; every `--resume` writes the next segment
 `recording.resume<k>.rrd` with the same recording id, so the viewer merges the segments into one
-recording when they are opened together (`flightrecon view RUN_DIR` opens them all).
+recording when they are opened together (`flightrecon view RUN_DIR` opens them all). Frames after
+the last checkpoint of a killed session are recorded again by the resume (same frame index).
+
+Size (measured at 320x240): ~0.11 MB per frame of images and candidates, ~60 bytes per logged splat
+per map snapshot, ~1.4 MB of scene mesh once.
 """
 
 from __future__ import annotations

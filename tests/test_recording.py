@@ -72,6 +72,7 @@ def flights(tmp_path_factory):
 def test_recording_reads_back_with_timelines_entities_and_every_frame(flights):
     rec_dir, _, rows = flights
     path = rec_dir / "recording.rrd"
+    assert len(rr.chunk.RrdReader(path).blueprints()) == 1  # the default layout travels with the file
     store = _store(path)
     schema = store.schema()
     timelines = {c.name for c in schema.index_columns()}
