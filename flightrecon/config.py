@@ -127,6 +127,9 @@ class MapperConfig:
     lr_opacities: float = _f(5e-2, 0.0, 1.0)
     lr_colors: float = _f(2.5e-3, 0.0, 1.0)
     backend: str = _f("auto", choices=("auto", "cpu", "cuda", "reference"))
+    one_new_per_voxel: bool = _f(False, doc="also keep at most one of a frame's new centers per gamma voxel "
+                                            "(smaller map, coarser detail); off: the paper's rule, only "
+                                            "voxels already holding a splat reject")
 
 
 @dataclass(frozen=True)

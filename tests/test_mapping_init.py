@@ -64,19 +64,22 @@ def test_new_splats_lie_on_the_surface_with_its_normals(office):
     np.testing.assert_allclose(1 / (1 + np.exp(-params["opacity_logits"])), 0.7, atol=1e-6)
 
 
-def test_rejection_keeps_one_center_per_free_voxel(office):
+def test_rejection_drops_new_centers_in_occupied_voxels(office):
     _, K, views = office
     existing = _candidates(*views[0][:2], K, views[0][2])["points"]
     new = _candidates(*views[1][:2], K, views[1][2], seed=1)["points"]
+    new_vox = [tuple(v) for v in np.floor(new / GAMMA).astype(np.int64)]
+    occupied = {tuple(v) for v in np.floor(existing / GAMMA).astype(np.int64)}
+    free = [i for i, v in enumerate(new_vox) if v not in occupied]
+    # the paper's rule: exactly the centers whose 5 cm voxel holds no splat yet survive
     kept = reject_near(new, existing, GAMMA)
     assert 0 < len(kept) < len(new)
-    vox = lambda p: {tuple(v) for v in np.floor(p / GAMMA).astype(np.int64)}  # noqa: E731
-    kept_vox = [tuple(v) for v in np.floor(new[kept] / GAMMA).astype(np.int64)]
-    assert len(set(kept_vox)) == len(kept_vox)  # no two new centers in one voxel
-    occupied = vox(existing)
-    assert not occupied & set(kept_vox)  # none inside a voxel that already holds a splat
-    # and nothing was dropped that had a free voxel of its own
-    assert vox(new) - occupied == set(kept_vox)
+    assert kept.tolist() == free
+    # the option: at most one new center per voxel, one in every free voxel
+    one = reject_near(new, existing, GAMMA, one_per_voxel=True)
+    one_vox = [new_vox[i] for i in one]
+    assert len(set(one_vox)) == len(one_vox)  # no two new centers in one voxel
+    assert set(one_vox) == {new_vox[i] for i in free}
 
 
 def test_invalid_depth_seeds_nothing(office):

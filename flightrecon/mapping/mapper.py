@@ -85,7 +85,8 @@ class OnlineMapper:
         cand = splat_init.frame_candidates(rgb, depth, K, T_wc, near=self.near, far=self.far,
                                            subsample=self.cfg.init_subsample, rng=self.rng)
         if len(self.map) > 0:  # the first frame is inserted whole (2DGS-SLAM)
-            keep = reject_near(cand["points"], self.map["means"].cpu().numpy(), self.cfg.gamma)
+            keep = reject_near(cand["points"], self.map["means"].cpu().numpy(), self.cfg.gamma,
+                               self.cfg.one_new_per_voxel)
             cand = {k: v[keep] for k, v in cand.items()}
         if len(cand["points"]) == 0:
             return 0

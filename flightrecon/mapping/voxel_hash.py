@@ -30,13 +30,15 @@ def occupied(keys: np.ndarray, existing_sorted: np.ndarray) -> np.ndarray:
     return existing_sorted[pos] == keys
 
 
-def reject_near(new_points: np.ndarray, existing_points: np.ndarray, voxel: float) -> np.ndarray:
-    """Indices of `new_points` to insert: one per voxel that no existing point occupies.
+def reject_near(new_points: np.ndarray, existing_points: np.ndarray, voxel: float,
+                one_per_voxel: bool = False) -> np.ndarray:
+    """Indices (ascending) of `new_points` whose voxel holds none of `existing_points`.
 
-    Among new points sharing a free voxel, the first (in the given order) is kept.
+    With `one_per_voxel`, of new points sharing a free voxel only the first (in order) is kept.
     """
     keys = voxel_keys(new_points, voxel)
-    free = ~occupied(keys, np.unique(voxel_keys(existing_points, voxel)))
-    cand = np.nonzero(free)[0]
+    cand = np.nonzero(~occupied(keys, np.unique(voxel_keys(existing_points, voxel))))[0]
+    if not one_per_voxel:
+        return cand
     _, first = np.unique(keys[cand], return_index=True)
     return np.sort(cand[first])
