@@ -137,7 +137,9 @@ def _curve(recs: list[dict], key: str) -> tuple[np.ndarray, np.ndarray, np.ndarr
     for r in recs:
         by_seed.setdefault(r["seed"], []).append(r["series"][key])
     n = min(len(s) for ss in by_seed.values() for s in ss)
-    per_seed = np.array([np.nanmean(np.stack([s[:n] for s in ss]), 0) for ss in by_seed.values()])
+    with warnings.catch_warnings():  # frames without an evaluation are all-NaN columns
+        warnings.simplefilter("ignore", RuntimeWarning)
+        per_seed = np.array([np.nanmean(np.stack([s[:n] for s in ss]), 0) for ss in by_seed.values()])
     frames = np.arange(n)
     ok = np.isfinite(per_seed).all(0)
     return frames[ok], per_seed.mean(0)[ok], per_seed.min(0)[ok], per_seed.max(0)[ok]
