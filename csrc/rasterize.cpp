@@ -17,6 +17,9 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <type_traits>
 #include <map>
 #include <string>
 #include <vector>
@@ -157,10 +160,30 @@ Bins bin_and_sort(const Projected<S>& P, int64_t N, const Settings& st, Stats& s
   }
   const S* depth = P.depth.data();
   const double t1 = omp_get_wtime();
-#pragma omp parallel for schedule(dynamic, 4)
-  for (int t = 0; t < tiles; ++t)
-    std::stable_sort(b.ids.begin() + b.offsets[t], b.ids.begin() + b.offsets[t + 1],
-                     [depth](int32_t a, int32_t c) { return depth[a] < depth[c]; });
+  // Sort each tile by (depth, id) through 64-bit keys: a binned splat has depth > near > 0, whose
+  // float bits order like the values, so one integer sort gives depth order with ties by id.
+#pragma omp parallel
+  {
+    std::vector<uint64_t> keys;
+#pragma omp for schedule(dynamic, 4)
+    for (int t = 0; t < tiles; ++t) {
+      const int64_t e0 = b.offsets[t], e1 = b.offsets[t + 1];
+      if constexpr (!std::is_same<S, float>::value) {  // double depths do not fit the key
+        std::stable_sort(b.ids.begin() + e0, b.ids.begin() + e1,
+                         [depth](int32_t a, int32_t c) { return depth[a] < depth[c]; });
+        continue;
+      }
+      keys.resize(size_t(e1 - e0));
+      for (int64_t e = e0; e < e1; ++e) {
+        const float dz = float(depth[b.ids[e]]);
+        uint32_t bits;
+        std::memcpy(&bits, &dz, sizeof bits);
+        keys[size_t(e - e0)] = (uint64_t(bits) << 32) | uint32_t(b.ids[e]);
+      }
+      std::sort(keys.begin(), keys.end());
+      for (int64_t e = e0; e < e1; ++e) b.ids[e] = int32_t(keys[size_t(e - e0)] & 0xffffffffu);
+    }
+  }
   stats.bin += t1 - t0;
   stats.sort += omp_get_wtime() - t1;
   stats.isects += int64_t(b.ids.size());
