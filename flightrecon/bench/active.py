@@ -1,0 +1,96 @@
+"""Active loop: per-candidate scoring time over a flight, step breakdown, scoring vs a plain render.
+
+Flies a short active run (default: the demo scenario), then, on the final map, times 2D GauSS-MI
+scoring of the whole candidate library at the scoring resolution and at 640x480, next to a plain
+one-channel render (unit features) of the same map and cameras: the difference is what the
+information gain costs beyond rasterization. A full run's wall time is extrapolated from the mean
+per-frame time and stated as such.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from flightrecon.active import gaussmi2d
+from flightrecon.active.selectors import splats_of
+from flightrecon.bench.common import report, time_call
+from flightrecon.config import load_config
+from flightrecon.control.trajectory import FlatState
+from flightrecon.mission import Mission
+from flightrecon.render import render
+
+STAGES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="demo")
+    p.add_argument("--frames", type=int, default=10, help="frames of the benchmark flight")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    p.add_argument("--full-frames", type=int, default=200, help="frames of the full run to extrapolate to")
+    p.add_argument("--repeat", type=int, default=3)
+
+
+def _score_times(mission: Mission, width: int, height: int, repeat: int) -> dict:
+    """Median seconds to score the library poses (MI) and to plain-render them, at width x height."""
+    s = mission.flight.state
+    start = FlatState(s.position, np.zeros(3), np.zeros(3), float(s.yaw), 0.0)
+    results = mission.planner.check(start, *mission.planner.library.poses(s.position, s.yaw))
+    poses = torch.as_tensor(mission.candidate_poses(results), dtype=torch.float32)
+    c = mission.cfg
+    K = torch.as_tensor(mission.K, dtype=torch.float32)
+    Ks = gaussmi2d.scoring_intrinsics(K, c.camera.width, c.camera.height, width, height)
+    splats = splats_of(mission.mapper)
+    rel = mission.mapper.map["reliability"]
+    near, far = mission.mapper.near, mission.mapper.far
+
+    def score():
+        gaussmi2d.score_candidates(splats, rel, poses, Ks, width, height, w_min=c.reliability.w_min,
+                                   near=near, far=far)
+
+    ones = torch.ones(len(mission.mapper.map), 1)
+    viewmats = torch.linalg.inv(poses)
+
+    @torch.no_grad()
+    def plain():
+        for i in range(0, len(poses), 64):
+            n = len(poses[i:i + 64])
+            render(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"], ones,
+                   viewmats[i:i + 64], Ks[None].expand(n, 3, 3).contiguous(), width, height, near=near, far=far,
+                   outputs=("features",))
+
+    t_score = time_call(score, repeat=repeat)["median_s"]
+    t_plain = time_call(plain, repeat=repeat)["median_s"]
+    return {"candidates": len(poses), "score_ms_per_cand": 1e3 * t_score / len(poses),
+            "plain_render_ms_per_cand": 1e3 * t_plain / len(poses), "score_over_plain": t_score / t_plain}
+
+
+def run(args: argparse.Namespace) -> dict:
+    cfg = load_config(args.scenario, [f"budget.frames={args.frames}", "output.record=false", *args.overrides])
+    with tempfile.TemporaryDirectory() as tmp:
+        mission = Mission(cfg, Path(tmp) / "run", progress=True)
+        metrics = mission.run()
+        rows = mission.state.records
+        per_cand = [1e3 * r["t_score"] / r["n_feasible"] for r in rows
+                    if r.get("n_feasible", 0) > 1 and "t_score" in r]
+        trend = np.polyfit(np.arange(len(per_cand)), per_cand, 1)[0] if len(per_cand) > 1 else float("nan")
+        frame_s = [sum(r.get(k, 0.0) for k in STAGES) for r in rows]
+        res = [(cfg.selector.scoring_width, cfg.selector.scoring_height), (640, 480)]
+        scoring = [{"resolution": f"{w}x{h}", **_score_times(mission, w, h, args.repeat)} for w, h in res]
+    breakdown = {k: statistics.median(r[k] for r in rows if k in r) for k in STAGES if any(k in r for r in rows)}
+    extra = {
+        "flight": f"{args.scenario} {cfg.camera.width}x{cfg.camera.height}, {len(rows)} frames, "
+                  f"{metrics['splats']} splats at the end",
+        "in_loop_score_ms_per_candidate_mean": float(np.mean(per_cand)) if per_cand else float("nan"),
+        "in_loop_score_ms_per_candidate_by_frame": [round(x, 3) for x in per_cand],
+        "trend_ms_per_candidate_per_frame": float(trend),
+        "step_breakdown_median_s": {k: round(v, 4) for k, v in breakdown.items()},
+        "mean_frame_s": float(np.mean(frame_s)),
+        "extrapolated_full_run_min": float(np.mean(frame_s)) * args.full_frames / 60.0,
+    }
+    return report("active", scoring, args.out, extra)
