@@ -1,4 +1,8 @@
-"""`flightrecon bench NAME`: run one benchmark module of flightrecon.bench, or all of them."""
+"""`flightrecon bench NAME [options]`: run one benchmark module of flightrecon.bench, or all of them.
+
+Benchmark modules import the heavy parts they measure, so they are imported only when run, never
+when the CLI starts; `flightrecon bench NAME --help` shows a benchmark's own options.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +11,7 @@ import importlib
 import pkgutil
 
 from flightrecon import bench
+from flightrecon.errors import FlightReconError
 
 
 def _bench_names() -> list[str]:
@@ -14,31 +19,31 @@ def _bench_names() -> list[str]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("bench", help="measure speed (world, flight, render, plan, map, active, all)")
-    bsub = p.add_subparsers(dest="bench_name", metavar="NAME")
-    for name in _bench_names():
-        mod = importlib.import_module(f"{bench.__name__}.{name}")
-        bp = bsub.add_parser(name, help=(mod.__doc__ or "").strip().splitlines()[0])
-        bp.add_argument("--out", default=None, help="also write the results as JSON here")
-        mod.add_arguments(bp)
-        bp.set_defaults(func=lambda a, m=mod: _run(m, a))
-    ap = bsub.add_parser("all", help="every benchmark with its defaults")
-    ap.set_defaults(func=_run_all)
-    p.set_defaults(func=lambda a: p.print_help())
+    names = _bench_names()
+    p = sub.add_parser("bench", help=f"measure speed ({', '.join(names)}, all)",
+                       description=f"benchmarks: {', '.join(names)}, or all (each with its defaults)")
+    p.add_argument("name", metavar="NAME", help=f"one of: {', '.join(names)}, all")
+    p.add_argument("options", nargs=argparse.REMAINDER, help="the benchmark's own options (NAME --help)")
+    p.set_defaults(func=_run)
 
 
-def _run(mod, args) -> int:
-    mod.run(args)
+def _parser(name: str):
+    mod = importlib.import_module(f"{bench.__name__}.{name}")
+    parser = argparse.ArgumentParser(prog=f"flightrecon bench {name}", description=mod.__doc__)
+    parser.add_argument("--out", default=None, help="also write the results as JSON here")
+    mod.add_arguments(parser)
+    return mod, parser
+
+
+def _run(args: argparse.Namespace) -> int:
+    names = _bench_names()
+    if args.name == "all":
+        for name in names:
+            mod, parser = _parser(name)
+            mod.run(parser.parse_args([]))
+        return 0
+    if args.name not in names:
+        raise FlightReconError(f"unknown benchmark '{args.name}' (choose from {', '.join(names)}, all)")
+    mod, parser = _parser(args.name)
+    mod.run(parser.parse_args(args.options))
     return 0
-
-
-def _run_all(args) -> int:
-    for name in _bench_names():
-        mod = importlib.import_module(f"{bench.__name__}.{name}")
-        parser = argparse.ArgumentParser()
-        parser.add_argument("--out", default=None)
-        mod.add_arguments(parser)
-        mod.run(parser.parse_args([]))
-    return 0
-
-
