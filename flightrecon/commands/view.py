@@ -21,7 +21,6 @@ import urllib.request
 from pathlib import Path
 
 from flightrecon.errors import FlightReconError
-from flightrecon.recording import has_display, recording_segments, web_viewer_address
 
 RERUN = [sys.executable, "-m", "rerun"]  # the viewer that ships with the installed rerun-sdk
 START_TIMEOUT_S = 30.0
@@ -45,6 +44,8 @@ def find_recordings(target: str | Path) -> list[Path]:
         return [target]
     if not target.is_dir():
         raise FlightReconError(f"{target}: no such run folder or .rrd file")
+    from flightrecon.recording import recording_segments  # rerun loads only when viewing
+
     files = recording_segments(target)
     if not files:
         raise FlightReconError(f"{target}: no recording.rrd (was the run flown with --no-record or "
@@ -56,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
     files = [str(f) for f in find_recordings(args.run_dir)]
     if args.web:
         return _serve_web(files, args.host, args.web_port, args.grpc_port)
+    from flightrecon.recording import has_display
+
     if not has_display():
         raise FlightReconError(
             "no display on this machine (DISPLAY and WAYLAND_DISPLAY are unset), so the native rerun viewer "
@@ -76,7 +79,7 @@ def _serve_web(files: list[str], host: str, web_port: int, grpc_port: int) -> in
         try:
             _wait_until_serving(proc, host, web_port, logf)
             shown = socket.gethostname() if host in ("0.0.0.0", "::") else host
-            print(f"serving {len(files)} recording file(s) at {web_viewer_address(web_port, grpc_port, shown)}",
+            print(f"serving {len(files)} recording file(s) at {_address(web_port, grpc_port, shown)}",
                   flush=True)
             print("press Ctrl-C to stop", flush=True)
             return proc.wait()
@@ -103,3 +106,9 @@ def _wait_until_serving(proc: subprocess.Popen, host: str, port: int, logf) -> N
         except (urllib.error.URLError, OSError):
             time.sleep(0.2)
     raise FlightReconError(f"the rerun web viewer did not answer on port {port} within {START_TIMEOUT_S:.0f} s")
+
+
+def _address(web_port: int, grpc_port: int, host: str) -> str:
+    from flightrecon.recording import web_viewer_address
+
+    return web_viewer_address(web_port, grpc_port, host)
