@@ -35,6 +35,7 @@ constexpr double CUTOFF = 3.33;
 constexpr double FILTER_INV_SQ = 2.0;
 constexpr double FILTER_REACH = 2.36;
 constexpr double BOX_EPS = 1e-3;
+constexpr double RHO_MARGIN = 1e-3;  // alpha margin exp(-5e-4): covers float error of rho and exp
 constexpr int NG = 11;           // per-pixel geometric gradient: T_u, T_v, T_w (9), means2d (2)
 constexpr int NSYM = NG * (NG + 1) / 2;
 
@@ -90,7 +91,7 @@ void conic_box(const S* Tu, const S* Tv, const S* Tw, S cs, S& cx, S& cy, S& ex,
 }
 
 template <typename S>
-void project_camera(const S* means, const S* U, const S* V, const S* n, int64_t N,
+void project_camera(const S* means, const S* U, const S* V, const S* n, const S* opac, int64_t N,
                     const Camera& cam, const Settings& st, Projected<S>& P) {
 #pragma omp parallel for schedule(static)
   for (int64_t i = 0; i < N; ++i) {
@@ -125,10 +126,21 @@ void project_camera(const S* means, const S* U, const S* V, const S* n, int64_t 
     P.m2d[2 * i + 1] = cy;
     S bx, by, bex, bey, bd;
     conic_box(M, M + 3, M + 6, S(CUTOFF), bx, by, bex, bey, bd);
-    const S lox = std::min(bx - bex, cx - S(FILTER_REACH)), hix = std::max(bx + bex, cx + S(FILTER_REACH));
-    const S loy = std::min(by - bey, cy - S(FILTER_REACH)), hiy = std::max(by + bey, cy + S(FILTER_REACH));
+    S lox = std::min(bx - bex, cx - S(FILTER_REACH)), hix = std::max(bx + bex, cx + S(FILTER_REACH));
+    S loy = std::min(by - bey, cy - S(FILTER_REACH)), hiy = std::max(by + bey, cy + S(FILTER_REACH));
     if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) continue;
-    P.radii[i] = int(std::ceil(S(CUTOFF) * std::max(ex, ey)));
+    P.radii[i] = int(std::ceil(S(CUTOFF) * std::max(ex, ey)));  // geometric: independent of opacity
+    // Opacity-aware extent: alpha = o exp(-rho / 2) reaches ALPHA_MIN only where
+    // rho <= 2 ln(o / ALPHA_MIN) (plus a margin for float error), so the binned box (and with it
+    // the tiles and the blend's rows and column groups) shrinks with the opacity; never wider than
+    // the fixed CUTOFF / FILTER_REACH box above, which is the o = 1 case.
+    const double rho_max = std::min(2.0 * std::log(double(opac[i]) / ALPHA_MIN) + RHO_MARGIN, CUTOFF * CUTOFF);
+    if (!(rho_max > 0)) continue;
+    const S cut = S(std::sqrt(rho_max)), freach = S(std::min(FILTER_REACH, std::sqrt(rho_max / FILTER_INV_SQ)));
+    conic_box(M, M + 3, M + 6, cut, bx, by, bex, bey, bd);
+    lox = std::min(bx - bex, cx - freach), hix = std::max(bx + bex, cx + freach);
+    loy = std::min(by - bey, cy - freach), hiy = std::max(by + bey, cy + freach);
+    if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) continue;
     // Pixel i is covered when lo <= i + 0.5 <= hi; clamp in double before converting to int.
     rect[0] = int(std::max(0.0, std::ceil(double(lox) - 0.5 - BOX_EPS)));
     rect[1] = int(std::max(0.0, std::ceil(double(loy) - 0.5 - BOX_EPS)));
@@ -439,7 +451,7 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
   auto one = [&](int64_t c, Projected<S>& P) {
     Stats& sc = per[c];
     double t0 = omp_get_wtime();
-    project_camera<S>(pm, pu, pv, pn, N, cams[c], st, P);
+    project_camera<S>(pm, pu, pv, pn, opac.data_ptr<S>(), N, cams[c], st, P);
     sc.project += omp_get_wtime() - t0;
     std::copy(P.radii.begin(), P.radii.end(), radii.data_ptr<int32_t>() + c * N);
     const Bins B = bin_and_sort(P, N, st, sc);
@@ -726,7 +738,8 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
   for (int64_t c = 0; c < C; ++c) {
     const Camera cam = camera_of(viewmats, Ks, c);
     double t0 = omp_get_wtime();
-    project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), N, cam, st, P);
+    project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), opac.data_ptr<S>(), N, cam,
+                      st, P);
     g_stats.project += omp_get_wtime() - t0;
     const Bins B = bin_and_sort(P, N, st, g_stats);
     auto ptr = [&](const torch::Tensor& t, int64_t per) -> const S* {
