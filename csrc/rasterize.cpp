@@ -281,7 +281,8 @@ void gather(const Projected<S>& P, const Bins& B, const S* opac, const S* feat, 
 }
 
 struct Flags {
-  bool normal, depth, dist;  // median depth is always produced: it costs two selects per pixel
+  bool normal, depth, dist;
+  bool track;  // median depth and the last/median splat per pixel (the backward needs them)
 };
 
 template <typename S>
@@ -290,7 +291,7 @@ struct FwdOut {
   int32_t *last, *medj;
 };
 
-template <typename S>
+template <typename S, bool TRACK>
 int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac, const S* feat,
                   int D, const Settings& st, const Flags& fl, const FwdOut<S>& out) {
   const int tx = tile % st.tiles_x, ty = tile / st.tiles_x;
@@ -347,13 +348,15 @@ int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* op
       const bool blend = ok && !stop;
       const S wp = blend ? h.a * T[p] : S(0);
       w[p] = wp;
-      zz[p] = blend ? h.z : near;
-      const bool med = blend && T[p] > S(0.5);
-      medz[p] = med ? h.z : medz[p];
-      medj[p] = med ? j : medj[p];
+      if constexpr (TRACK) {  // features-only calls (view selection) skip the depth bookkeeping
+        zz[p] = blend ? h.z : near;
+        const bool med = blend && T[p] > S(0.5);
+        medz[p] = med ? h.z : medz[p];
+        medj[p] = med ? j : medj[p];
+        last[p] = blend ? j + 1 : last[p];
+      }
       T[p] = blend ? testT : T[p];
       act[p] = stop ? S(0) : act[p];
-      last[p] = blend ? j + 1 : last[p];
       accA[p] += wp;
       any |= int(blend);
     }
@@ -395,9 +398,11 @@ int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* op
     if (fl.normal)
       for (int k = 0; k < 3; ++k) out.normal[q * 3 + k] = accN[size_t(k) * TP + p];
     if (fl.depth || fl.dist) { out.zsum[q] = accZ[p]; out.msum[q] = accM[p]; out.m2sum[q] = accM2[p]; }
-    out.median[q] = medz[p];
-    out.last[q] = last[p];
-    out.medj[q] = medj[p];
+    if constexpr (TRACK) {
+      out.median[q] = medz[p];
+      out.last[q] = last[p];
+      out.medj[q] = medj[p];
+    }
   }
   return evals;
 }
@@ -435,10 +440,11 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
   auto zsum = torch::zeros({dz ? C : 0, H, W}, opt);
   auto msum = torch::zeros({dz ? C : 0, H, W}, opt);
   auto m2sum = torch::zeros({dz ? C : 0, H, W}, opt);
-  auto median = torch::zeros({C, H, W}, opt);
+  const int64_t Ct = fl.track ? C : 0;
+  auto median = torch::zeros({Ct, H, W}, opt);
   auto iopt = opt.dtype(torch::kInt32);
-  auto last = torch::zeros({C, H, W}, iopt);
-  auto medj = torch::zeros({C, H, W}, iopt);
+  auto last = torch::zeros({Ct, H, W}, iopt);
+  auto medj = torch::zeros({Ct, H, W}, iopt);
   auto radii = torch::zeros({C, N}, iopt);
   const Settings st = settings_of(W, H, near, far);
   const int tiles = st.tiles_x * st.tiles_y;
@@ -459,14 +465,17 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
     FwdOut<S> out{feat_img.data_ptr<S>() + c * HW * D, alpha.data_ptr<S>() + c * HW,
                   fl.normal ? normal.data_ptr<S>() + c * HW * 3 : nullptr,
                   dz ? zsum.data_ptr<S>() + c * HW : nullptr, dz ? msum.data_ptr<S>() + c * HW : nullptr,
-                  dz ? m2sum.data_ptr<S>() + c * HW : nullptr, median.data_ptr<S>() + c * HW,
-                  last.data_ptr<int32_t>() + c * HW, medj.data_ptr<int32_t>() + c * HW};
+                  dz ? m2sum.data_ptr<S>() + c * HW : nullptr, fl.track ? median.data_ptr<S>() + c * HW : nullptr,
+                  fl.track ? last.data_ptr<int32_t>() + c * HW : nullptr,
+                  fl.track ? medj.data_ptr<int32_t>() + c * HW : nullptr};
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
     const S* op = opac.data_ptr<S>();
     t0 = omp_get_wtime();
     int64_t evals = 0;
 #pragma omp parallel for schedule(dynamic, 1) reduction(+ : evals)
-    for (int t = 0; t < tiles; ++t) evals += forward_tile<S>(t, P, B, op, f, int(D), st, fl, out);
+    for (int t = 0; t < tiles; ++t)
+      evals += fl.track ? forward_tile<S, true>(t, P, B, op, f, int(D), st, fl, out)
+                        : forward_tile<S, false>(t, P, B, op, f, int(D), st, fl, out);
     sc.blend += omp_get_wtime() - t0;
     sc.evals += evals;
   };
@@ -821,8 +830,8 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
 std::vector<torch::Tensor> forward(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,
                                    torch::Tensor opac, torch::Tensor feats, torch::Tensor viewmats,
                                    torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
-                                   bool normal, bool depth, bool dist) {
-  const Flags fl{normal, depth, dist};
+                                   bool normal, bool depth, bool dist, bool track) {
+  const Flags fl{normal, depth, dist, track || normal || depth || dist};
   if (means.scalar_type() == torch::kFloat64)
     return forward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl);
   return forward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl);
@@ -834,7 +843,7 @@ std::vector<torch::Tensor> backward(torch::Tensor means, torch::Tensor U, torch:
                                     bool normal, bool depth, bool dist,
                                     std::vector<torch::Tensor> fwd, std::vector<torch::Tensor> grads,
                                     bool fisher) {
-  const Flags fl{normal, depth, dist};
+  const Flags fl{normal, depth, dist, true};
   if (means.scalar_type() == torch::kFloat64)
     return backward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher);
   return backward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher);

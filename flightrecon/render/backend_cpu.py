@@ -25,11 +25,11 @@ class RasterizeCPU(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means, U, V, n, opac, feats, viewmats, Ks, width, height, near, far,
-                normal, depth, dist):
+                normal, depth, dist, track):
         dt = means.dtype
         args = [_prep(t, dt) for t in (means, U, V, n, opac, feats)]
         cams = (viewmats.detach().double().contiguous(), Ks.detach().double().contiguous())
-        outs = load().forward(*args, *cams, width, height, near, far, normal, depth, dist)
+        outs = load().forward(*args, *cams, width, height, near, far, normal, depth, dist, track)
         ctx.save_for_backward(*args, *cams, *outs[:9])
         ctx.meta = (width, height, near, far, normal, depth, dist)
         ctx.mark_non_differentiable(*outs[7:])
@@ -43,7 +43,7 @@ class RasterizeCPU(torch.autograd.Function):
                  for g, o in zip((gF, gA, gN, gZ, gM, gM2, gMed), fwd[:7])]
         kept = fwd[:6] + fwd[7:9]  # the kernel re-derives everything else; median is not needed
         g = load().backward(*args, *cams, *ctx.meta, kept, grads, False)
-        return (*g, None, None, None, None, None, None, None, None, None)
+        return (*g, None, None, None, None, None, None, None, None, None, None)
 
 
 def render_cpu(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Tensor,
@@ -54,11 +54,17 @@ def render_cpu(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits:
     want_normal = "normal" in outputs or "normal_world" in outputs
     want_depth = "depth" in outputs
     want_dist = "distortion" in outputs
+    # the median depth and the per-pixel last/median splat ids cost per-pixel bookkeeping that only
+    # the median_depth output and the backward need (view selection asks for features alone)
+    track = "median_depth" in outputs or (torch.is_grad_enabled() and any(
+        t.requires_grad for t in (means, quats, log_scales, opacity_logits, features, viewmats, Ks)))
     feat, alpha, normal, zsum, msum, m2sum, median, _, _, radii = RasterizeCPU.apply(
         means, U, V, n, torch.sigmoid(opacity_logits), feats, viewmats, Ks, width, height,
-        float(near), float(far), want_normal, want_depth, want_dist)
+        float(near), float(far), want_normal, want_depth, want_dist, track)
     alpha = alpha[..., None]
-    out = {"features": feat, "alpha": alpha, "median_depth": median[..., None], "radii": radii}
+    out = {"features": feat, "alpha": alpha, "radii": radii}
+    if track:
+        out["median_depth"] = median[..., None]
     if want_normal:
         out["normal"] = normal
     if want_depth:

@@ -60,7 +60,7 @@ def render_fisher_diag(means: Tensor, quats: Tensor, log_scales: Tensor, opacity
         cams = (viewmats.double().contiguous(), Ks.double().contiguous())
         geo = [t.to(dt).contiguous() for t in (means, U, V, n, opac)]
         ext = load()
-        fwd = ext.forward(*geo, feats, *cams, width, height, near, far, False, False, False)
+        fwd = ext.forward(*geo, feats, *cams, width, height, near, far, False, False, False, True)
         grads = [torch.ones_like(fwd[0])] + [torch.zeros_like(t) for t in fwd[1:7]]
         kept = fwd[:6] + fwd[7:9]
         G_sym, o2, w2 = ext.backward(*geo, feats, *cams, width, height, near, far,
