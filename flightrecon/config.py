@@ -304,17 +304,22 @@ def resolve_scenario_path(name_or_path: str) -> Path:
     return SCENARIO_DIR / f"{name_or_path}.toml"
 
 
+def read_toml(path: Path, what: str) -> dict:
+    """Parse a TOML file; a missing or unparsable file is a ConfigError that says `what` it is."""
+    if not path.is_file():
+        raise ConfigError(f"{what} not found: {path}")
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{what} {path} is not valid TOML: {exc}") from None
+
+
 def load_config(source: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> ScenarioConfig:
     """Load a scenario TOML (or the defaults when `source` is None), apply overrides, validate."""
     data: dict = {}
     if source is not None:
         path = resolve_scenario_path(str(source))
-        if not path.is_file():
-            raise ConfigError(f"scenario file not found: {path}")
-        try:
-            data = tomllib.loads(path.read_text(encoding="utf-8"))
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"scenario file {path} is not valid TOML: {exc}") from None
+        data = read_toml(path, "scenario file")
         data.setdefault("name", path.stem)
     for text in overrides:
         data = _merge(data, parse_override(text))

@@ -19,12 +19,12 @@ of radius 0.3 m and 0.6 m around the drone at 36 bearings. A user library is a T
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from flightrecon.config import read_toml
 from flightrecon.errors import ConfigError
 
 STEP_XY = 0.3  # m (GauSS-MI's lateral unit)
@@ -78,12 +78,7 @@ def load_library(spec: str) -> ViewpointLibrary:
     if spec == "default":
         return default_library()
     path = Path(spec)
-    if not path.is_file():
-        raise ConfigError(f"planner.library: candidate file not found: {path}")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"planner.library: {path} is not valid TOML: {exc}") from None
+    data = read_toml(path, "planner.library: candidate file")
     extra = sorted(set(data) - {"candidate"})
     if extra:
         raise ConfigError(f"planner.library: {path}: unknown key '{extra[0]}' (expected [[candidate]] tables)")
