@@ -93,12 +93,42 @@ void conic_box(const S* Tu, const S* Tv, const S* Tw, S cs, S& cx, S& cy, S& ex,
 template <typename S>
 void project_camera(const S* means, const S* U, const S* V, const S* n, const S* opac, int64_t N,
                     const Camera& cam, const Settings& st, Projected<S>& P) {
+  // Frustum planes through the camera center, widened by the low-pass filter's reach in pixels
+  // (plus a margin): a splat whose bounding sphere (radius CUTOFF |(U, V)|, which holds the cutoff
+  // ellipse and the projected center) lies wholly outside one of them cannot touch the image, so
+  // it is rejected before the costly part of the projection. Only for plain pinhole K.
+  const double* K = cam.K;
+  const bool pinhole = K[1] == 0 && K[3] == 0 && K[6] == 0 && K[7] == 0 && K[8] == 1 && K[0] > 0 && K[4] > 0;
+  const double m = FILTER_REACH + 1.0;
+  double planes[4][2];  // (a, b): a * x_or_y + b * z >= 0 inside; index 0, 1 act on x, 2, 3 on y
+  const double ab[4][2] = {{K[0], K[2] + m}, {-K[0], st.W + m - K[2]}, {K[4], K[5] + m}, {-K[4], st.H + m - K[5]}};
+  for (int k = 0; k < 4; ++k) {
+    const double len = std::sqrt(ab[k][0] * ab[k][0] + ab[k][1] * ab[k][1]);
+    planes[k][0] = ab[k][0] / len;
+    planes[k][1] = ab[k][1] / len;
+  }
 #pragma omp parallel for schedule(static)
   for (int64_t i = 0; i < N; ++i) {
     S pc[3], uc[3], vc[3], nc[3];
     for (int r = 0; r < 3; ++r) {
       const double* Rr = cam.R + 3 * r;
       pc[r] = S(Rr[0]) * means[3 * i] + S(Rr[1]) * means[3 * i + 1] + S(Rr[2]) * means[3 * i + 2] + S(cam.t[r]);
+    }
+    if (pinhole) {
+      const S* u = U + 3 * i;
+      const S* v = V + 3 * i;
+      const S rad = S(CUTOFF * 1.01) * std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+      bool out = !(pc[2] > S(st.near));
+      for (int k = 0; k < 4; ++k)
+        out = out || S(planes[k][0]) * pc[k / 2] + S(planes[k][1]) * pc[2] < -rad;
+      if (out) {
+        P.rect[4 * i] = 1; P.rect[4 * i + 2] = 0;
+        P.radii[i] = 0;
+        continue;
+      }
+    }
+    for (int r = 0; r < 3; ++r) {
+      const double* Rr = cam.R + 3 * r;
       uc[r] = S(Rr[0]) * U[3 * i] + S(Rr[1]) * U[3 * i + 1] + S(Rr[2]) * U[3 * i + 2];
       vc[r] = S(Rr[0]) * V[3 * i] + S(Rr[1]) * V[3 * i + 1] + S(Rr[2]) * V[3 * i + 2];
       nc[r] = S(Rr[0]) * n[3 * i] + S(Rr[1]) * n[3 * i + 1] + S(Rr[2]) * n[3 * i + 2];
