@@ -19,8 +19,6 @@ from flightrecon import fileio
 from flightrecon.config import load_config, to_toml
 from flightrecon.dataset import encode_color_png, encode_depth_png, load_dataset
 from flightrecon.errors import ConfigError
-from flightrecon.mapping.offline import evaluate_view, mean_metrics, train_on_dataset
-from flightrecon.mapping.ply import save_map
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -37,6 +35,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # torch and the rasterizer load only when mapping runs, not whenever the CLI starts
+    from flightrecon.mapping.offline import evaluate_view, mean_metrics, train_on_dataset
+    from flightrecon.mapping.ply import save_map
+
     if args.holdout < 0:
         raise ConfigError(f"--holdout must be 0 or more, got {args.holdout}")
     cfg = load_config(args.scenario, args.overrides)
