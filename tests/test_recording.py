@@ -1,5 +1,5 @@
 """The rerun recording of a flight, read back with rerun's own reader (rerun.chunk: RrdReader, the
-store's schema and its chunks), plus the `view` command's paths on this headless machine.
+store's schema and its chunks, and its dataframe query), plus the `view` command's paths on this headless machine.
 
 The flights are real (MuJoCo, OMPL, ruckig, the C++ rasterizer) at tiny settings. The same seed is
 flown with and without recording to show that recording does not change the flight.
@@ -100,6 +100,18 @@ def test_recording_reads_back_with_timelines_entities_and_every_frame(flights):
     assert set((rec_dir / "events.log").read_text().splitlines()) <= set(texts)
     size_mb = path.stat().st_size / 1e6
     assert size_mb < SIZE_BOUND_MB, size_mb
+
+
+@pytest.mark.slow
+def test_dataframe_query_has_one_capture_row_per_frame(flights):
+    """rerun's dataframe query (datafusion) over the frame timeline: the captured images' rows."""
+    rec_dir, _, rows = flights
+    store = _store(rec_dir / "recording.rrd")
+    df = store.reader(index="frame", contents="/world/camera/image").to_pandas()
+    image_cols = [c for c in df.columns if c.startswith("/world/camera/image:")]
+    assert image_cols, list(df.columns)
+    captured = df[df[image_cols].notna().any(axis=1)]
+    assert sorted(captured["frame"].tolist()) == [int(r["frame"]) for r in rows]
 
 
 @pytest.mark.slow
