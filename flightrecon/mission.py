@@ -202,7 +202,8 @@ class Mission:
         if len(feasible) == 1:
             chosen, row["chosen_score"] = feasible[0], math.nan
         elif feasible:
-            scores = np.asarray(self.selector.score(self.mapper, self.candidate_poses(feasible)), float)
+            lengths = np.array([r.length for r in feasible])
+            scores = np.asarray(self.selector.score(self.mapper, self.candidate_poses(feasible), lengths), float)
             best = int(np.argmax(scores))
             chosen, row["chosen_score"] = feasible[best], float(scores[best])
         row["t_score"] = time.perf_counter() - t

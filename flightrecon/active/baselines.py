@@ -159,7 +159,7 @@ class GaussMISelector(_Scoring):
             scores.append(out.features[..., 0].double().sum(dim=(1, 2)))
         return torch.cat(scores).cpu()
 
-    def score(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
+    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         raw = self.view_scores(mapper, poses).numpy()
         now = self.visited[-1][0] if self.visited else 0
         disc = np.array([revisit_discount(T[:3, 3], yaw_of_camera(T), self.visited, now) for T in poses])
@@ -198,7 +198,7 @@ class FisherRFSelector(_Scoring):
         return total
 
     @torch.no_grad()
-    def score(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
+    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         if len(mapper.map) == 0 or not self.train_poses:
             return np.zeros(len(poses))
         H_train = self.hessian(mapper, np.stack(self.train_poses))

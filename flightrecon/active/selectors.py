@@ -40,8 +40,9 @@ class Selector(Protocol):
     def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
         """Update the selector's state after `obs` was mapped; returns diagnostics for the logs."""
 
-    def score(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
-        """Scores [C] of candidate camera poses T_wc [C,4,4]; the loop flies to the argmax."""
+    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
+        """Scores [C] of candidate camera poses T_wc [C,4,4] reached by planned paths of `lengths` [C] m
+        (None: unknown); the loop flies to the argmax."""
 
 
 def splats_of(mapper: OnlineMapper) -> dict[str, torch.Tensor]:
@@ -75,7 +76,7 @@ class GaussMI2D:
         mapper.map["reliability"][:] = new
         return diag
 
-    def score(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
+    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         s = self.cfg.selector
         T = torch.as_tensor(np.asarray(poses, np.float32), device=mapper.device)
         mi = gaussmi2d.score_candidates(splats_of(mapper), mapper.map["reliability"], T,
@@ -98,7 +99,7 @@ class RandomSelector:
     def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
         return {}
 
-    def score(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
+    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         return self.rng.random(len(poses))
 
 
