@@ -52,10 +52,12 @@ from flightrecon.sim.world import build_world
 log = logging.getLogger(__name__)
 
 CHECKPOINT = "checkpoint.pkl"
+RELIABLE_LOGODDS = math.log(0.7 / 0.3)  # P(r) > 0.7
+RELIABLE_EMA, RELIABLE_STOP = 0.95, 0.75
 FRAME_COLUMNS = ("frame", "sim_time", "t_capture", "t_map", "t_select_update", "t_plan", "t_score",
                  "t_fly_sim", "n_splats", "n_candidates", "n_feasible", "n_ompl", "chosen_score",
                  "flight_time", "flight_distance", "recovery", "frame_psnr", "frame_depth_l1_cm",
-                 "eval_psnr", "eval_depth_l1_cm", "min_clearance", "contacts")
+                 "eval_psnr", "eval_depth_l1_cm", "min_clearance", "contacts", "reliable_share_ema")
 
 
 @dataclass
@@ -68,6 +70,7 @@ class MissionState:
     visited: list = field(default_factory=list)  # (position, yaw) of every capture
     flight_distance: float = 0.0
     wall_time: float = 0.0
+    reliable_ema: float = 0.0  # GauSS-MI's stopping statistic (see `_update_stopping`)
 
 
 def flight_region(scene, cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -138,6 +141,11 @@ class Mission:
             if self.cfg.output.checkpoint:
                 self._save_checkpoint()
             bar.update(row)
+            if self.cfg.budget.stop_on_reliability and self.state.reliable_ema > RELIABLE_STOP:
+                self._event(f"frame {self.state.frame - 1}: stopping rule met (EMA of the reliable share "
+                            f"{self.state.reliable_ema:.3f} > {RELIABLE_STOP})")
+                self._save_frame_outputs()
+                break
         bar.close()
         self.recorder.close()
         return self._finish()
@@ -167,6 +175,7 @@ class Mission:
         t = time.perf_counter()
         diag = self.selector.observe(self.mapper, obs)
         row["t_select_update"] = time.perf_counter() - t
+        row["reliable_share_ema"] = self._update_stopping()
         row["n_splats"] = len(self.mapper.map)
         row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(self.mapper, obs)
         self.recorder.capture(obs)
@@ -182,6 +191,15 @@ class Mission:
             return row
         self._choose_and_fly(row)
         return row
+
+    def _update_stopping(self) -> float:
+        """GauSS-MI's stopping statistic: an exponential moving average (0.95) of the share of splats
+        whose (front-side) reliability exceeds 0.7; `budget.stop_on_reliability` stops past 75%.
+        Selectors that keep no reliability leave it at 0, so the rule never stops them."""
+        rel = self.mapper.map["reliability"]
+        share = float((rel[:, 0] > RELIABLE_LOGODDS).float().mean()) if len(rel) else 0.0
+        self.state.reliable_ema = RELIABLE_EMA * self.state.reliable_ema + (1 - RELIABLE_EMA) * share
+        return self.state.reliable_ema
 
     def _choose_and_fly(self, row: dict) -> None:
         seed_ompl(self.cfg.seed * 1_000_003 + self.state.frame)

@@ -47,6 +47,21 @@ def test_short_flight_improves_and_writes_outputs(tmp_path):
     selected = [r for r in rows[2:-1] if r["n_feasible"] and int(r["n_feasible"]) > 1]
     assert selected, "no step had a choice between candidates"
     assert all(np.isfinite(float(r["chosen_score"])) for r in selected)
+    ema = [float(r["reliable_share_ema"]) for r in rows]  # GauSS-MI's stopping statistic
+    assert all(0.0 <= e <= 1.0 for e in ema) and ema[-1] > 0
+
+
+@pytest.mark.slow
+def test_stopping_rule_ends_the_flight_early(tmp_path):
+    # Splats fit the frames they came from, so the reliable share rises and its EMA passes 75% well
+    # before the 40-frame budget.
+    cfg = load_config("demo", TINY + ["budget.frames=40", "budget.initial_views=2", "budget.stop_on_reliability=true",
+                                      "evaluation.every=0"])
+    metrics = Mission(cfg, tmp_path, progress=False).run()
+    rows = _rows(tmp_path)
+    assert metrics["frames"] == len(rows) < 40
+    assert float(rows[-1]["reliable_share_ema"]) > 0.75
+    assert "stopping rule met" in (tmp_path / "events.log").read_text()
 
 
 def _fly(args: list[str], **kw) -> subprocess.Popen:
