@@ -22,6 +22,7 @@ import logging
 import math
 import pickle
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -173,14 +174,12 @@ class Mission:
         self.mapper.add_frame(rgb, depth, self.K, T_wc)
         row["t_map"] = time.perf_counter() - t
         t = time.perf_counter()
-        diag = self.selector.observe(self.mapper, obs)
+        self.selector.observe(self.mapper, obs)
         row["t_select_update"] = time.perf_counter() - t
         row["reliable_share_ema"] = self._update_stopping()
         row["n_splats"] = len(self.mapper.map)
         row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(self.mapper, obs)
         self.recorder.capture(obs)
-        if diag.get("note"):
-            self._event(diag["note"])
         self.planner.integrate(depth, self.K, T_wc, body_position=body.position)
 
         every = cfg.evaluation.every
@@ -255,9 +254,7 @@ class Mission:
 
     def _recover(self, start: FlatState, results: list[CandidateResult], row: dict) -> CandidateResult | None:
         """No feasible candidate: turn in place, else back-track to an earlier viewpoint, else hover."""
-        reasons = {}
-        for r in results:
-            reasons[r.reason] = reasons.get(r.reason, 0) + 1
+        reasons = dict(Counter(r.reason for r in results))
         turns = start.yaw + np.array([math.pi / 2, -math.pi / 2, math.pi])
         for r in self.planner.check(start, np.repeat(start.position[None], 3, 0), turns):
             if r.feasible:
