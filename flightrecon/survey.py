@@ -7,8 +7,10 @@ planner's safety margin would no longer fit, or at OUTER_SHARE of the way to the
 the center to every waypoint is clear. Consecutive waypoints are joined by a straight leg when that
 leg keeps the same clearance, otherwise through the center; the loop ends over the center. Legs are rest-to-rest moves within the
 planner's speed, acceleration, jerk and yaw limits. At every waypoint the drone settles (arrival
-detection) and captures one frame looking outward and one looking back across the room. The frames
-go to an RGB-D dataset (flightrecon.dataset) with the flown trajectory.
+detection) and captures HEADINGS frames, turning in equal steps from the outward heading (with 8,
+consecutive frames overlap by half a 90-degree field of view, so any one frame held out for evaluation
+is seen by its neighbours; the old 2, outward and back, left held-out views largely unseen). The
+frames go to an RGB-D dataset (flightrecon.dataset) with the flown trajectory.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ WALL_KEEP = 0.4  # waypoints stay this much farther from the room box than the c
 OUTER_SHARE = 0.65  # of the way to the walls: outward views keep some context, not just a wall
 MIN_RADIUS = 0.3  # rays that cannot go this far from the center get no waypoint
 START_ABOVE_FLOOR = 0.05  # the drone starts resting just above the floor
+HEADINGS = 8  # captures per waypoint, equally spaced in yaw starting outward
 
 
 @dataclass(frozen=True)
@@ -63,7 +66,8 @@ def _clear(field: DistanceField, a: np.ndarray, b: np.ndarray, required: float) 
     return bool(field.distance(pts).min() >= required)
 
 
-def survey_waypoints(scene: Scene, cfg: ScenarioConfig, field: DistanceField) -> list[Waypoint]:
+def survey_waypoints(scene: Scene, cfg: ScenarioConfig, field: DistanceField,
+                     headings: int = HEADINGS) -> list[Waypoint]:
     """The loop of capture points (see the module doc), starting and ending near the center."""
     center = takeoff_point(scene, cfg)
     required = cfg.drone.body_radius + cfg.planner.safety_margin
@@ -95,7 +99,7 @@ def survey_waypoints(scene: Scene, cfg: ScenarioConfig, field: DistanceField) ->
     for p, theta in points:
         if not _clear(field, prev, p, required):
             route.append(Waypoint(center, ()))
-        route.append(Waypoint(p, (theta, theta + math.pi)))
+        route.append(Waypoint(p, tuple(theta + 2 * math.pi * j / headings for j in range(headings))))
         prev = p
     route.append(Waypoint(center, ()))  # back over the take-off spot: the ray legs are clear
     return route
@@ -111,8 +115,9 @@ class SurveyResult:
     unsettled: int
 
 
-def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str], None] = print) -> SurveyResult:
-    """Fly the survey in `cfg`'s scene and write the dataset to `out_dir`."""
+def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str], None] = print,
+               headings: int = HEADINGS) -> SurveyResult:
+    """Fly the survey in `cfg`'s scene and write the dataset to `out_dir` (`headings` captures per waypoint)."""
     from flightrecon.scene.source import scene_from_config
     from flightrecon.sim.camera import RGBDCamera
     from flightrecon.sim.flight import Flight
@@ -125,7 +130,7 @@ def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str
     world = build_world(scene, cfg)
     center = takeoff_point(scene, cfg)
     field = scene_distance_field(scene, cfg, center)
-    route = survey_waypoints(scene, cfg, field)
+    route = survey_waypoints(scene, cfg, field, headings)
     n_frames = sum(len(w.yaws) for w in route)
     c = cfg.camera
     camera = RGBDCamera(world, c.width, c.height, c.hfov_deg, c.near, c.far)
