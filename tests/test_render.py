@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from flightrecon.errors import DataError, FlightReconError
-from flightrecon.render import render, render_fisher_diag
+from flightrecon.render import FisherDiag, render, render_fisher_diag
+from flightrecon.render.fisher import screen_jacobian
 from flightrecon.render.projection import CUTOFF, project, splat_axes
 from flightrecon.render.reference import render_reference
 
@@ -141,6 +142,40 @@ def test_fisher_diag_matches_bruteforce_per_pixel_autograd():
         want = (j ** 2).sum(0)
         assert want.abs().max() > 0, name
         torch.testing.assert_close(got, want, rtol=1e-8, atol=1e-10, msg=name)
+
+
+def test_screen_jacobian_matches_autograd_of_the_projection():
+    """The closed-form Jacobian of (ray transform, means2d) against reverse-mode autograd of `project`."""
+    N, C = 5, 3
+    means, quats, ls, _, _ = make_scene(N, seed=3, dtype=torch.float64, spread=0.3, depth=1.5)
+    vm, K = cameras(C, 16, 12, torch.float64, f=14.0)
+
+    def screen(m, s):
+        U, V, n = splat_axes(quats, s)
+        p = project(m, U, V, n, vm, K, 16, 12, 0.05, 10.0)
+        return torch.cat([p.ray_transforms.flatten(-2), p.means2d], -1)  # [C,N,11]
+
+    Jm, Js = torch.autograd.functional.jacobian(screen, (means, ls))  # [C,N,11,N,3], [C,N,11,N,2]
+    want = torch.stack([torch.cat([Jm[:, i, :, i], Js[:, i, :, i]], -1) for i in range(N)], 1)
+    U, V, _ = splat_axes(quats, ls)
+    cam, splat = torch.arange(C).repeat_interleave(N), torch.arange(N).repeat(C)
+    got = screen_jacobian(means, U, V, vm, K, cam, splat).reshape(C, N, 11, 5)
+    assert want[..., 9:, :].abs().max() > 0.1  # the means2d rows take part
+    torch.testing.assert_close(got, want, rtol=1e-9, atol=1e-9)
+
+
+def test_fisher_diag_per_camera_equals_one_call_per_camera():
+    means, quats, ls, op, cols = make_scene(60, seed=4, spread=0.4, depth=2.0)
+    vm, K = cameras(3, 24, 18)
+    per = render_fisher_diag(means, quats, ls, op, cols, vm, K, 24, 18, reduce=False)
+    total = render_fisher_diag(means, quats, ls, op, cols, vm, K, 24, 18)
+    for c in range(3):
+        one = render_fisher_diag(means, quats, ls, op, cols, vm[c:c + 1], K[c:c + 1], 24, 18)
+        for name, a, b in zip(FisherDiag._fields, per, one):
+            torch.testing.assert_close(a[c], b, rtol=1e-6, atol=0, msg=name)
+    for name, a, b in zip(FisherDiag._fields, per, total):
+        assert b.abs().max() > 0, name
+        torch.testing.assert_close(a.sum(0), b, rtol=1e-5, atol=1e-7 * float(b.abs().max()), msg=name)
 
 
 EDGE_CASES = {

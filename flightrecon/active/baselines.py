@@ -42,7 +42,7 @@ from flightrecon.active.selectors import GaussMI2D, Observation, register, splat
 from flightrecon.config import ScenarioConfig
 from flightrecon.geometry import intrinsics, pixel_rays, yaw_of_camera
 from flightrecon.mapping.mapper import OnlineMapper
-from flightrecon.render import render, render_fisher_diag
+from flightrecon.render import FisherDiag, render, render_fisher_diag
 
 EXPLORE_RANGE = 5.0  # m, ActiveGS's utility range
 
@@ -167,14 +167,14 @@ class GaussMISelector(_Scoring):
 
 
 # ---------------------------------------------------------------------------------- FisherRF
-def fisher_score(H_cand, H_train, lam: float) -> float:
-    """sum over parameters of H_cand / (H_train + lambda) (FisherDiag fields)."""
-    return float(sum((hc.double() / (ht.double() + lam)).sum() for hc, ht in zip(H_cand, H_train)))
+def fisher_scores(H_cams: FisherDiag, H_train: FisherDiag, lam: float) -> torch.Tensor:
+    """[C] sum over parameters of H_cand / (H_train + lambda), H_cams per camera ([C,N,...])."""
+    return sum((hc.double() / (ht.double() + lam)).flatten(1).sum(1) for hc, ht in zip(H_cams, H_train))
 
 
 class FisherRFSelector(_Scoring):
     name = "fisherrf"
-    TRAIN_CHUNK = 4  # cameras per Hessian call (bounds the kernel's per-camera buffers)
+    CHUNK_BYTES = 256 << 20  # per Hessian call: the kernel's [C,N,66] buffer plus the pairs' G and J
 
     def __init__(self, cfg: ScenarioConfig) -> None:
         super().__init__(cfg, cfg.selector.scoring_width, cfg.selector.scoring_height)
@@ -185,17 +185,22 @@ class FisherRFSelector(_Scoring):
         self.train_poses.append(np.asarray(obs.T_wc, np.float32))
         return {}
 
-    def hessian(self, mapper: OnlineMapper, poses: np.ndarray) -> list[torch.Tensor]:
-        """Diagonal Hessian (position, color, scale, opacity) summed over the views T_wc [V,4,4]."""
+    def _chunks(self, mapper: OnlineMapper, poses: np.ndarray, reduce: bool):
+        """Diagonal Hessians of the views T_wc [V,4,4], a chunk of cameras per kernel call (sized so
+        a call stays within CHUNK_BYTES, about 1 KB per camera and splat)."""
         sp = splats_of(mapper)
-        total = None
-        for s in range(0, len(poses), self.TRAIN_CHUNK):
-            vm = torch.linalg.inv(_t(poses[s:s + self.TRAIN_CHUNK], mapper.device))
-            Ks = self.K_score.to(mapper.device)[None].expand(vm.shape[0], 3, 3).contiguous()
-            h = render_fisher_diag(sp["means"], sp["quats"], sp["log_scales"], sp["opacity_logits"],
-                                   sp["colors"], vm, Ks, self.width, self.height, mapper.near, mapper.far)
-            total = list(h) if total is None else [a + b for a, b in zip(total, h)]
-        return total
+        step = int(min(64, max(1, self.CHUNK_BYTES // (1024 * max(1, len(mapper.map))))))
+        K = self.K_score.to(mapper.device)
+        for s in range(0, len(poses), step):
+            vm = torch.linalg.inv(_t(poses[s:s + step], mapper.device))
+            yield render_fisher_diag(sp["means"], sp["quats"], sp["log_scales"], sp["opacity_logits"],
+                                     sp["colors"], vm, K[None].expand(vm.shape[0], 3, 3).contiguous(),
+                                     self.width, self.height, mapper.near, mapper.far, reduce=reduce)
+
+    def hessian(self, mapper: OnlineMapper, poses: np.ndarray) -> FisherDiag:
+        """Diagonal Hessian (position, color, scale, opacity) summed over the views T_wc [V,4,4]."""
+        parts = list(self._chunks(mapper, poses, reduce=True))
+        return FisherDiag(*(sum(fields) for fields in zip(*parts)))
 
     @torch.no_grad()
     def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
@@ -203,7 +208,8 @@ class FisherRFSelector(_Scoring):
             return np.zeros(len(poses))
         H_train = self.hessian(mapper, np.stack(self.train_poses))
         lam = self.cfg.baselines.fisherrf_lambda
-        return np.array([fisher_score(self.hessian(mapper, np.asarray(T)[None]), H_train, lam) for T in poses])
+        scores = [fisher_scores(h, H_train, lam) for h in self._chunks(mapper, np.asarray(poses), reduce=False)]
+        return torch.cat(scores).cpu().numpy()
 
 
 # ---------------------------------------------------------------------------------- ActiveGS
