@@ -43,6 +43,8 @@ _ROWS = torch.stack([torch.tensor([j, 3 + j, 6 + j, 9, 10]) for j in _COLUMN.tol
 _PACKED = torch.zeros(NG, NG, dtype=torch.long)
 _PACKED[_IU[0], _IU[1]] = torch.arange(_IU.shape[1])
 _PACKED[_IU[1], _IU[0]] = torch.arange(_IU.shape[1])
+_GATHER = _PACKED[_ROWS[:, :, None], _ROWS[:, None, :]].flatten()  # G[_ROWS[k], _ROWS[k]] per k
+_DIAG = _PACKED.diagonal()
 
 
 def jacobian_rows(means: Tensor, U: Tensor, V: Tensor, viewmats: Tensor, Ks: Tensor, cam: Tensor,
@@ -54,10 +56,14 @@ def jacobian_rows(means: Tensor, U: Tensor, V: Tensor, viewmats: Tensor, Ks: Ten
     M = K [U_c | V_c | p_c]: theta_k moves only column j = _COLUMN[k] of M, by c = K R e_k for a
     mean, by K U_c (K V_c) for log s_u (log s_v). means2d = (Tu.Tw, Tv.Tw) / Tw.Tw in the (1, 1, -1)
     metric (projection._conic_box), so its derivative follows from c and row j of (Tu, Tv, Tw)."""
-    R, t, K = viewmats[cam, :3, :3], viewmats[cam, :3, 3], Ks[cam]
-    p_c = (R @ means[splat][..., None])[..., 0] + t
-    M = K @ torch.stack([(R @ U[splat][..., None])[..., 0], (R @ V[splat][..., None])[..., 0], p_c], -1)
-    c = torch.cat([K @ R, M[:, :, :2]], -1).transpose(1, 2)  # [P,5,3]: d (column j of M) / d theta_k
+    R, t = viewmats[:, :3, :3], viewmats[:, :3, 3]
+    KR, Kt = (Ks @ R)[cam], (Ks @ t[..., None])[cam, :, 0]  # per camera, then per pair
+
+    def apply(x: Tensor) -> Tensor:  # K R x for each pair's camera, x [P,3]
+        return (KR * x[:, None, :]).sum(-1)
+
+    M = torch.stack([apply(U[splat]), apply(V[splat]), apply(means[splat]) + Kt], -1)
+    c = torch.cat([KR, M[:, :, :2]], -1).transpose(1, 2)  # [P,5,3]: d (column j of M) / d theta_k
     test = torch.tensor([1.0, 1.0, -1.0], dtype=M.dtype, device=M.device)
     Tu, Tv, Tw = M[:, 0], M[:, 1], M[:, 2]
     d = (Tw * Tw * test).sum(-1)
@@ -102,10 +108,11 @@ def render_fisher_diag(means: Tensor, quats: Tensor, log_scales: Tensor, opacity
         G_sym, o2, w2 = ext.backward(*geo, feats, *cams, width, height, near, far,
                                      False, False, False, kept, grads, True)
         C, N = G_sym.shape[:2]
-        # G's diagonal holds sums of squares: a pair with any nonzero entry has a nonzero diagonal.
-        diag = (_IU[0] == _IU[1]).nonzero()[:, 0]
-        cam, splat = (G_sym[:, :, diag] != 0).any(-1).nonzero(as_tuple=True)
-        Gk = G_sym[cam, splat][:, _PACKED[_ROWS[:, :, None], _ROWS[:, None, :]]]  # [P,5,5,5]
+        # G's diagonal holds sums of squares: a pair with any nonzero entry has a positive diagonal.
+        flat = G_sym.reshape(C * N, G_sym.shape[-1])
+        pair = (flat.index_select(1, _DIAG).sum(-1) > 0).nonzero()[:, 0]
+        cam, splat = pair // N, pair % N
+        Gk = flat.index_select(0, pair).index_select(1, _GATHER).view(-1, 5, 5, 5)  # [P,k,a,b]
         v = jacobian_rows(geo[0], geo[1], geo[2], viewmats.to(dt), Ks.to(dt), cam, splat)
         Hp = torch.einsum("pka,pkab,pkb->pk", v, Gk, v)
         s = opac * (1 - opac)
