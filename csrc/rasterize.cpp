@@ -49,9 +49,18 @@ struct Projected {
       : M(9 * n), m2d(2 * n), depth(n), nrm(3 * n), sign(n), rect(4 * n), radii(n) {}
 };
 
+// One camera's binned splats. The splats that touch the image are packed into contiguous records
+// (the blend reads one record per splat instead of chasing ids through N-sized arrays), sorted
+// once by depth, and each tile lists its records in that order, so no per-tile sort is needed.
+constexpr int REC = 15;  // record: ray transform (9), means2d (2), opacity, normal (3); features follow
+template <typename S>
 struct Bins {
   std::vector<int64_t> offsets;  // [tiles + 1]
-  std::vector<int32_t> ids;      // splat ids, per tile sorted by depth
+  std::vector<int32_t> ids;      // per tile: record indices in depth order
+  std::vector<int32_t> splat;    // record -> splat id
+  std::vector<int32_t> rect;     // record -> px0, py0, px1, py1 (inclusive)
+  std::vector<S> rec;            // records, REC + D values each
+  int R = REC;
 };
 
 // Phase timings (seconds) and blend work of the last forward or backward call, for profiling.
@@ -179,55 +188,86 @@ void project_camera(const S* means, const S* U, const S* V, const S* n, const S*
   }
 }
 
+// Stable LSD radix sort of ids by 32-bit keys (8 bits a pass; passes whose byte is the same for
+// every key are skipped): ids that enter in increasing order keep it among equal keys.
+inline void radix_sort(std::vector<uint32_t>& key, std::vector<int32_t>& id) {
+  const size_t n = key.size();
+  std::vector<uint32_t> k2(n);
+  std::vector<int32_t> i2(n);
+  for (int shift = 0; shift < 32; shift += 8) {
+    size_t count[257] = {0};
+    for (size_t e = 0; e < n; ++e) ++count[((key[e] >> shift) & 0xffu) + 1];
+    if (n == 0 || count[((key[0] >> shift) & 0xffu) + 1] == n) continue;
+    for (int b = 0; b < 256; ++b) count[b + 1] += count[b];
+    for (size_t e = 0; e < n; ++e) {
+      const size_t d = count[(key[e] >> shift) & 0xffu]++;
+      k2[d] = key[e];
+      i2[d] = id[e];
+    }
+    key.swap(k2);
+    id.swap(i2);
+  }
+}
+
 template <typename S>
-Bins bin_and_sort(const Projected<S>& P, int64_t N, const Settings& st, Stats& stats) {
+Bins<S> bin_and_sort(const Projected<S>& P, int64_t N, const S* opac, const S* feat, int D,
+                     const Settings& st, Stats& stats) {
   const int tiles = st.tiles_x * st.tiles_y;
   const double t0 = omp_get_wtime();
-  Bins b;
-  b.offsets.assign(tiles + 1, 0);
+  Bins<S> b;
+  // Records of the splats that touch the image, packed in id order (sequential reads).
   for (int64_t i = 0; i < N; ++i) {
     const int* r = &P.rect[4 * i];
-    if (r[0] > r[2] || r[1] > r[3]) continue;
+    if (r[0] <= r[2] && r[1] <= r[3]) b.splat.push_back(int32_t(i));
+  }
+  const int64_t V = int64_t(b.splat.size());
+  b.R = REC + D;
+  b.rect.resize(4 * size_t(V));
+  b.rec.resize(size_t(V) * b.R);
+#pragma omp parallel for schedule(static)
+  for (int64_t k = 0; k < V; ++k) {
+    const size_t i = size_t(b.splat[k]);
+    S* q = &b.rec[size_t(k) * b.R];
+    for (int c = 0; c < 9; ++c) q[c] = P.M[9 * i + c];
+    q[9] = P.m2d[2 * i];
+    q[10] = P.m2d[2 * i + 1];
+    q[11] = opac[i];
+    for (int c = 0; c < 3; ++c) q[12 + c] = P.nrm[3 * i + c];
+    for (int d = 0; d < D; ++d) q[REC + d] = feat[int64_t(i) * D + d];
+    for (int c = 0; c < 4; ++c) b.rect[4 * k + c] = P.rect[4 * i + c];
+  }
+  const double t1 = omp_get_wtime();
+  // Depth order with ties by id: a binned splat has depth > near > 0, whose float bits order like
+  // the values, so a stable integer sort of the id-ordered records gives it.
+  std::vector<int32_t> order(V);
+  for (int64_t k = 0; k < V; ++k) order[k] = int32_t(k);
+  if constexpr (std::is_same<S, float>::value) {
+    std::vector<uint32_t> key(V);
+    for (int64_t k = 0; k < V; ++k) std::memcpy(&key[k], &P.depth[b.splat[k]], sizeof(uint32_t));
+    radix_sort(key, order);
+  } else {  // double depths do not fit the key
+    const S* depth = P.depth.data();
+    const int32_t* id = b.splat.data();
+    std::stable_sort(order.begin(), order.end(), [depth, id](int32_t a, int32_t c) { return depth[id[a]] < depth[id[c]]; });
+  }
+  const double t2 = omp_get_wtime();
+  // Tiles list their records in depth order.
+  b.offsets.assign(tiles + 1, 0);
+  for (int64_t k = 0; k < V; ++k) {
+    const int* r = &b.rect[4 * k];
     for (int ty = r[1] / TS; ty <= r[3] / TS; ++ty)
       for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx) ++b.offsets[ty * st.tiles_x + tx + 1];
   }
   for (int t = 0; t < tiles; ++t) b.offsets[t + 1] += b.offsets[t];
   b.ids.resize(b.offsets[tiles]);
   std::vector<int64_t> fill(b.offsets.begin(), b.offsets.end() - 1);
-  for (int64_t i = 0; i < N; ++i) {
-    const int* r = &P.rect[4 * i];
-    if (r[0] > r[2] || r[1] > r[3]) continue;
+  for (int64_t k : order) {
+    const int* r = &b.rect[4 * k];
     for (int ty = r[1] / TS; ty <= r[3] / TS; ++ty)
-      for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx) b.ids[fill[ty * st.tiles_x + tx]++] = int32_t(i);
+      for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx) b.ids[fill[ty * st.tiles_x + tx]++] = int32_t(k);
   }
-  const S* depth = P.depth.data();
-  const double t1 = omp_get_wtime();
-  // Sort each tile by (depth, id) through 64-bit keys: a binned splat has depth > near > 0, whose
-  // float bits order like the values, so one integer sort gives depth order with ties by id.
-#pragma omp parallel
-  {
-    std::vector<uint64_t> keys;
-#pragma omp for schedule(dynamic, 4)
-    for (int t = 0; t < tiles; ++t) {
-      const int64_t e0 = b.offsets[t], e1 = b.offsets[t + 1];
-      if constexpr (!std::is_same<S, float>::value) {  // double depths do not fit the key
-        std::stable_sort(b.ids.begin() + e0, b.ids.begin() + e1,
-                         [depth](int32_t a, int32_t c) { return depth[a] < depth[c]; });
-        continue;
-      }
-      keys.resize(size_t(e1 - e0));
-      for (int64_t e = e0; e < e1; ++e) {
-        const float dz = float(depth[b.ids[e]]);
-        uint32_t bits;
-        std::memcpy(&bits, &dz, sizeof bits);
-        keys[size_t(e - e0)] = (uint64_t(bits) << 32) | uint32_t(b.ids[e]);
-      }
-      std::sort(keys.begin(), keys.end());
-      for (int64_t e = e0; e < e1; ++e) b.ids[e] = int32_t(keys[size_t(e - e0)] & 0xffffffffu);
-    }
-  }
-  stats.bin += t1 - t0;
-  stats.sort += omp_get_wtime() - t1;
+  stats.bin += (t1 - t0) + (omp_get_wtime() - t2);
+  stats.sort += t2 - t1;
   stats.isects += int64_t(b.ids.size());
   return b;
 }
@@ -283,31 +323,15 @@ inline Hit<S> hit(const S* M, const Row<S>& r, S mx, S o, S x, S near) {
   return h;
 }
 
-// Packs the per-splat data of tile entries [e0, e1) contiguously (ray transform, means2d, opacity,
-// normal, the tile's pixel range, features), so the blend loops read sequential memory instead of
-// chasing splat ids through N-sized arrays; the gather's independent loads overlap in the CPU.
-constexpr int REC = 19;  // record length before the features
 constexpr int LANES = 8;  // column group: one AVX2 float vector; a splat visits only the groups its box covers
-template <typename S>
-void gather(const Projected<S>& P, const Bins& B, const S* opac, const S* feat, int D, int tx, int ty,
-            int64_t e0, int64_t e1, std::vector<S>& rec) {
-  const int R = REC + D;
-  rec.resize(size_t(e1 - e0) * R);
-  for (int64_t e = e0; e < e1; ++e) {
-    const int i = B.ids[e];
-    S* q = &rec[size_t(e - e0) * R];
-    for (int k = 0; k < 9; ++k) q[k] = P.M[9 * size_t(i) + k];
-    q[9] = P.m2d[2 * size_t(i)];
-    q[10] = P.m2d[2 * size_t(i) + 1];
-    q[11] = opac[i];
-    for (int k = 0; k < 3; ++k) q[12 + k] = P.nrm[3 * size_t(i) + k];
-    const int* r = &P.rect[4 * size_t(i)];
-    q[15] = S(std::max(r[1] - ty * TS, 0) * TS);
-    q[16] = S((std::min(r[3] - ty * TS, TS - 1) + 1) * TS);
-    q[17] = S(std::max(r[0] - tx * TS, 0) / LANES);
-    q[18] = S(std::min(r[2] - tx * TS, TS - 1) / LANES + 1);
-    for (int d = 0; d < D; ++d) q[REC + d] = feat[int64_t(i) * D + d];
-  }
+
+// A record's pixel range in tile (tx, ty): rows as pixel offsets [p0, p1), column groups [g0, g1).
+struct Span {
+  int p0, p1, g0, g1;
+};
+inline Span span_of(const int* r, int tx, int ty) {
+  return Span{std::max(r[1] - ty * TS, 0) * TS, (std::min(r[3] - ty * TS, TS - 1) + 1) * TS,
+              std::max(r[0] - tx * TS, 0) / LANES, std::min(r[2] - tx * TS, TS - 1) / LANES + 1};
 }
 
 struct Flags {
@@ -322,8 +346,8 @@ struct FwdOut {
 };
 
 template <typename S, bool TRACK>
-int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac, const S* feat,
-                  int D, const Settings& st, const Flags& fl, const FwdOut<S>& out) {
+int64_t forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const Flags& fl,
+                     const FwdOut<S>& out) {
   const int tx = tile % st.tiles_x, ty = tile / st.tiles_x;
   alignas(64) S px[TP], py[TP], T[TP], act[TP], w[TP], zz[TP];
   alignas(64) S accA[TP], accZ[TP], accM[TP], accM2[TP], medz[TP];
@@ -346,19 +370,17 @@ int64_t forward_tile(int tile, const Projected<S>& P, const Bins& B, const S* op
   const int64_t b0 = B.offsets[tile], b1 = B.offsets[tile + 1];
   int64_t evals = 0;
   constexpr int CHUNK = 32;
-  const int R = REC + D;
-  std::vector<S> rec;
   for (int64_t jj = b0; jj < b1; ++jj) {
-    if (((jj - b0) % CHUNK) == 0) {
-      if (jj > b0 && std::none_of(row_alive, row_alive + TS, [](bool b) { return b; })) break;
-      gather(P, B, opac, feat, D, tx, ty, jj, std::min(b1, jj + CHUNK), rec);
-    }
-    const S* q = &rec[size_t((jj - b0) % CHUNK) * R];
-    const int p0 = int(q[15]), p1 = int(q[16]);
+    if (jj > b0 && ((jj - b0) % CHUNK) == 0 && std::none_of(row_alive, row_alive + TS, [](bool b) { return b; }))
+      break;
+    const int k = B.ids[jj];
+    const S* q = &B.rec[size_t(k) * B.R];
+    const Span sp = span_of(&B.rect[4 * size_t(k)], tx, ty);
+    const int p0 = sp.p0, p1 = sp.p1;
     const S* M = q;
     const S mx = q[9], my = q[10], o = q[11];
     const int32_t j = int32_t(jj - b0);
-    const int c0 = int(q[17]) * LANES, c1 = int(q[18]) * LANES;
+    const int c0 = sp.g0 * LANES, c1 = sp.g1 * LANES;
     int any = 0;
     for (int p00 = p0; p00 < p1; p00 += TS) {
     if (!row_alive[p00 / TS]) {  // every pixel of this row has terminated
@@ -463,19 +485,20 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
   const int64_t N = means.size(0), C = viewmats.size(0), D = feats.size(2);
   const bool shared = feats.size(0) == 1;
   auto opt = means.options();
-  auto feat_img = torch::zeros({C, H, W, D}, opt);
-  auto alpha = torch::zeros({C, H, W}, opt);
-  auto normal = torch::zeros({fl.normal ? C : 0, H, W, 3}, opt);
+  // every output pixel and radius is written below (torch::empty: no zero fill of [C,H,W,..])
+  auto feat_img = torch::empty({C, H, W, D}, opt);
+  auto alpha = torch::empty({C, H, W}, opt);
+  auto normal = torch::empty({fl.normal ? C : 0, H, W, 3}, opt);
   const bool dz = fl.depth || fl.dist;
-  auto zsum = torch::zeros({dz ? C : 0, H, W}, opt);
-  auto msum = torch::zeros({dz ? C : 0, H, W}, opt);
-  auto m2sum = torch::zeros({dz ? C : 0, H, W}, opt);
+  auto zsum = torch::empty({dz ? C : 0, H, W}, opt);
+  auto msum = torch::empty({dz ? C : 0, H, W}, opt);
+  auto m2sum = torch::empty({dz ? C : 0, H, W}, opt);
   const int64_t Ct = fl.track ? C : 0;
-  auto median = torch::zeros({Ct, H, W}, opt);
+  auto median = torch::empty({Ct, H, W}, opt);
   auto iopt = opt.dtype(torch::kInt32);
-  auto last = torch::zeros({Ct, H, W}, iopt);
-  auto medj = torch::zeros({Ct, H, W}, iopt);
-  auto radii = torch::zeros({C, N}, iopt);
+  auto last = torch::empty({Ct, H, W}, iopt);
+  auto medj = torch::empty({Ct, H, W}, iopt);
+  auto radii = torch::empty({C, N}, iopt);
   const Settings st = settings_of(W, H, near, far);
   const int tiles = st.tiles_x * st.tiles_y;
   std::vector<Camera> cams;
@@ -490,7 +513,8 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
     project_camera<S>(pm, pu, pv, pn, opac.data_ptr<S>(), N, cams[c], st, P);
     sc.project += omp_get_wtime() - t0;
     std::copy(P.radii.begin(), P.radii.end(), radii.data_ptr<int32_t>() + c * N);
-    const Bins B = bin_and_sort(P, N, st, sc);
+    const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
+    const Bins<S> B = bin_and_sort(P, N, opac.data_ptr<S>(), f, int(D), st, sc);
     const int64_t HW = H * W;
     FwdOut<S> out{feat_img.data_ptr<S>() + c * HW * D, alpha.data_ptr<S>() + c * HW,
                   fl.normal ? normal.data_ptr<S>() + c * HW * 3 : nullptr,
@@ -498,14 +522,12 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
                   dz ? m2sum.data_ptr<S>() + c * HW : nullptr, fl.track ? median.data_ptr<S>() + c * HW : nullptr,
                   fl.track ? last.data_ptr<int32_t>() + c * HW : nullptr,
                   fl.track ? medj.data_ptr<int32_t>() + c * HW : nullptr};
-    const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
-    const S* op = opac.data_ptr<S>();
     t0 = omp_get_wtime();
     int64_t evals = 0;
 #pragma omp parallel for schedule(dynamic, 1) reduction(+ : evals)
     for (int t = 0; t < tiles; ++t)
-      evals += fl.track ? forward_tile<S, true>(t, P, B, op, f, int(D), st, fl, out)
-                        : forward_tile<S, false>(t, P, B, op, f, int(D), st, fl, out);
+      evals += fl.track ? forward_tile<S, true>(t, B, int(D), st, fl, out)
+                        : forward_tile<S, false>(t, B, int(D), st, fl, out);
     sc.blend += omp_get_wtime() - t0;
     sc.evals += evals;
   };
@@ -541,8 +563,8 @@ struct BwdIn {
 // Slot layout per (tile, splat): geometric 11 (T_u, T_v, T_w, means2d), opacity, normal 3, feat D.
 // In Fisher mode: NSYM outer-product entries, sum of dL/do^2, sum of w^2.
 template <typename S, bool FISHER>
-void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac, const S* feat,
-                   int D, const Settings& st, const Flags& fl, const BwdIn<S>& in, int G, S* slots) {
+void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const Flags& fl,
+                   const BwdIn<S>& in, int G, S* slots) {
   const int tx = tile % st.tiles_x, ty = tile / st.tiles_x;
   alignas(64) S px[TP], py[TP], T[TP], Pre[TP], Tot[TP], s[TP], w[TP];
   alignas(64) S gA[TP], gZ[TP], gM[TP], gM2[TP], gMed[TP];
@@ -588,19 +610,18 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
   const S near = S(st.near), mscale = S(st.far / (st.far - st.near));
   const S mder = S(st.far * st.near / (st.far - st.near));
   const int64_t b0 = B.offsets[tile];
-  std::vector<S> rec;
-  gather(P, B, opac, feat, D, tx, ty, b0, b0 + maxlast, rec);
-  const int R = REC + D;
   for (int32_t j = 0; j < maxlast; ++j) {
     const int64_t jj = b0 + j;
     S* slot = slots + jj * G;
-    const S* q = &rec[size_t(j) * R];
-    const int p0 = int(q[15]), p1 = int(q[16]);
+    const int k = B.ids[jj];
+    const S* q = &B.rec[size_t(k) * B.R];
+    const Span sp = span_of(&B.rect[4 * size_t(k)], tx, ty);
+    const int p0 = sp.p0, p1 = sp.p1;
     const S* M = q;
     const S mx = q[9], my = q[10], o = q[11];
     const S* f = q + REC;
     const S* nr = q + 12;
-    const int c0 = int(q[17]) * LANES, c1 = int(q[18]) * LANES;
+    const int c0 = sp.g0 * LANES, c1 = sp.g1 * LANES;
 #pragma omp simd
     for (int p = p0; p < p1; ++p) s[p] = gA[p];
     for (int d = 0; d < D; ++d) {
@@ -717,13 +738,13 @@ void backward_tile(int tile, const Projected<S>& P, const Bins& B, const S* opac
 
 // Sums each splat's slots in tile order into per-splat rows [N, G] (parallel over splats).
 template <typename S>
-std::vector<S> reduce_slots(const Bins& B, int64_t N, int G, const std::vector<S>& slots) {
+std::vector<S> reduce_slots(const Bins<S>& B, int64_t N, int G, const std::vector<S>& slots) {
   const int64_t nis = int64_t(B.ids.size());
   std::vector<int64_t> start(N + 1, 0);
-  for (int64_t e = 0; e < nis; ++e) ++start[B.ids[e] + 1];
+  for (int64_t e = 0; e < nis; ++e) ++start[B.splat[B.ids[e]] + 1];
   for (int64_t i = 0; i < N; ++i) start[i + 1] += start[i];
   std::vector<int64_t> order(nis), fill(start.begin(), start.end() - 1);
-  for (int64_t e = 0; e < nis; ++e) order[fill[B.ids[e]]++] = e;  // in tile order per splat
+  for (int64_t e = 0; e < nis; ++e) order[fill[B.splat[B.ids[e]]]++] = e;  // in tile order per splat
   std::vector<S> rows(size_t(N) * G, S(0));
 #pragma omp parallel for schedule(static)
   for (int64_t i = 0; i < N; ++i)
@@ -780,7 +801,8 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
     project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), opac.data_ptr<S>(), N, cam,
                       st, P);
     g_stats.project += omp_get_wtime() - t0;
-    const Bins B = bin_and_sort(P, N, st, g_stats);
+    const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
+    const Bins<S> B = bin_and_sort(P, N, opac.data_ptr<S>(), f, int(D), st, g_stats);
     auto ptr = [&](const torch::Tensor& t, int64_t per) -> const S* {
       return t.numel() ? t.data_ptr<S>() + c * HW * per : nullptr;
     };
@@ -790,14 +812,12 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
                 ptr(grads[0], D), ptr(grads[1], 1), fl.normal ? ptr(grads[2], 3) : nullptr,
                 dz ? ptr(grads[3], 1) : nullptr, dz ? ptr(grads[4], 1) : nullptr,
                 dz ? ptr(grads[5], 1) : nullptr, ptr(grads[6], 1)};
-    const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
     t0 = omp_get_wtime();
     std::vector<S> slots(B.ids.size() * size_t(G), S(0));
-    const S* op = opac.data_ptr<S>();
 #pragma omp parallel for schedule(dynamic, 1)
     for (int t = 0; t < tiles; ++t) {
-      if (fisher) backward_tile<S, true>(t, P, B, op, f, int(D), st, fl, in, G, slots.data());
-      else backward_tile<S, false>(t, P, B, op, f, int(D), st, fl, in, G, slots.data());
+      if (fisher) backward_tile<S, true>(t, B, int(D), st, fl, in, G, slots.data());
+      else backward_tile<S, false>(t, B, int(D), st, fl, in, G, slots.data());
     }
     g_stats.blend += omp_get_wtime() - t0;
     t0 = omp_get_wtime();
