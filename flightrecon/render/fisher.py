@@ -9,7 +9,7 @@ exactly as J^T G J with J the pixel-independent Jacobian of those 11 quantities:
 closed form from `projection.project`'s equations (M = K [U_c | V_c | p_c]: a mean moves only the
 p_c column, log s_u scales the U_c column, log s_v the V_c column; means2d is M's conic center),
 and evaluated only for the (camera, splat) pairs the kernel saw cover a pixel, since G is zero for
-all others. Tests hold it to forward-mode autograd of `project`.
+all others. Tests hold it to autograd of `project`.
 """
 
 from __future__ import annotations
@@ -110,9 +110,9 @@ def render_fisher_diag(means: Tensor, quats: Tensor, log_scales: Tensor, opacity
         C, N = G_sym.shape[:2]
         # G's diagonal holds sums of squares: a pair with any nonzero entry has a positive diagonal.
         flat = G_sym.reshape(C * N, G_sym.shape[-1])
-        pair = (flat.index_select(1, _DIAG).sum(-1) > 0).nonzero()[:, 0]
+        pair = (flat.index_select(1, _DIAG.to(flat.device)).sum(-1) > 0).nonzero()[:, 0]
         cam, splat = pair // N, pair % N
-        Gk = flat.index_select(0, pair).index_select(1, _GATHER).view(-1, 5, 5, 5)  # [P,k,a,b]
+        Gk = flat.index_select(0, pair).index_select(1, _GATHER.to(flat.device)).view(-1, 5, 5, 5)  # [P,k,a,b]
         v = jacobian_rows(geo[0], geo[1], geo[2], viewmats.to(dt), Ks.to(dt), cam, splat)
         Hp = torch.einsum("pka,pkab,pkb->pk", v, Gk, v)
         s = opac * (1 - opac)
