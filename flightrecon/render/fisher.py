@@ -112,7 +112,8 @@ def render_fisher_diag(means: Tensor, quats: Tensor, log_scales: Tensor, opacity
         flat = G_sym.reshape(C * N, G_sym.shape[-1])
         pair = (flat.index_select(1, _DIAG.to(flat.device)).sum(-1) > 0).nonzero()[:, 0]
         cam, splat = pair // N, pair % N
-        Gk = flat.index_select(0, pair).index_select(1, _GATHER.to(flat.device)).view(-1, 5, 5, 5)  # [P,k,a,b]
+        at = pair[:, None] * flat.shape[1] + _GATHER.to(flat.device)  # G[_ROWS[k], _ROWS[k]] of each pair
+        Gk = flat.view(-1)[at].view(-1, 5, 5, 5)  # [P,k,a,b]
         v = jacobian_rows(geo[0], geo[1], geo[2], viewmats.to(dt), Ks.to(dt), cam, splat)
         Hp = torch.einsum("pka,pkab,pkb->pk", v, Gk, v)
         s = opac * (1 - opac)
