@@ -118,7 +118,11 @@ class MapperConfig:
     lambda_distortion: float = _f(1.0, 0.0, 1e3)
     lambda_normal: float = _f(0.05, 0.0, 1e3)
     ssim_weight: float = _f(0.125, 0.0, 1.0, doc="weight of D-SSIM in the color loss (2DGS-SLAM)")
-    init_subsample: float = _f(0.1, 1e-4, 1.0, doc="share of valid depth pixels that seed splats")
+    init_subsample: float = _f(0.1, 1e-4, 1.0, doc="share of valid depth pixels that seed splats (at 640x480 "
+                                                   "when init_scale_by_resolution)")
+    init_scale_by_resolution: bool = _f(True, doc="scale init_subsample by 640*480/(W*H) (capped at 1) so splats seed "
+                                                  "the surface equally densely at any image size (2DGS-SLAM's 10% at "
+                                                  "640x480 is 40% at 320x240); off: the share at every size")
     init_opacity: float = _f(0.7, 0.01, 0.99)
     prune_opacity: float = _f(0.0, 0.0, 1.0, doc="drop splats below this opacity after a frame; 0: off")
     lr_means: float = _f(1e-4, 0.0, 1.0)
@@ -130,6 +134,9 @@ class MapperConfig:
     one_new_per_voxel: bool = _f(False, doc="also keep at most one of a frame's new centers per gamma voxel "
                                             "(smaller map, coarser detail); off: the paper's rule, only "
                                             "voxels already holding a splat reject")
+    init_edge_normals: bool = _f(True, doc="pixels at occlusion edges and on thin structures (no central-difference "
+                                           "normal) seed splats with a one-sided or camera-facing normal; off: "
+                                           "they seed nothing, so thin objects are never mapped")
 
 
 @dataclass(frozen=True)

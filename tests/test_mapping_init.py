@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from flightrecon.config import load_config
-from flightrecon.geometry import camera_pose, project_points, quat_to_rotmat
+from flightrecon.geometry import camera_pose, pixel_rays, project_points, quat_to_rotmat
 from flightrecon.mapping import init as splat_init
 from flightrecon.mapping.voxel_hash import reject_near
 from flightrecon.scene.procedural import make_scene
@@ -103,3 +103,30 @@ def test_invalid_depth_seeds_nothing(office):
         assert all(len(v) == 0 for v in empty.values())
         assert len(splat_init.splat_params(empty["points"], empty["normals"], empty["colors"], opacity=0.7,
                                            min_scale=1e-3, max_scale=GAMMA)["means"]) == 0
+
+
+def test_thin_structures_and_occlusion_edges_seed_splats_with_surface_normals():
+    # A tilted wall (depth affine in inverse depth) with a 2-pixel-wide vertical pole in front of it.
+    K = np.array([[80.0, 0, 40], [0, 80.0, 30], [0, 0, 1]])
+    u = np.arange(80) + 0.5
+    inv = 0.5 + 0.002 * (u - 40)  # plane with normal tilted about the y axis
+    depth = np.tile(1.0 / inv, (60, 1)).astype(np.float32)
+    depth[:, 40:42] = 1.0
+    valid = splat_init.valid_depth_mask(depth, NEAR, FAR)
+    n_old, ok_old = splat_init.depth_normals(depth, K, valid, edges=False)
+    n, ok = splat_init.depth_normals(depth, K, valid)
+    rows = slice(1, 59)
+    assert not ok_old[rows, 40:42].any() and ok[rows, 40:42].all()  # the pole seeds only with edges
+    # where the central difference worked nothing changes
+    np.testing.assert_array_equal(n[ok_old], n_old[ok_old])
+    # the wall pixels beside the pole get the wall's exact normal from their one-sided difference
+    wall_n = n_old[30, 20]
+    for col in (39, 42):
+        assert not ok_old[30, col] and ok[30, col]
+        np.testing.assert_allclose(n[rows, col], np.broadcast_to(wall_n, (58, 3)), atol=1e-4)
+    # the pole's normal is perpendicular to its axis (image y) and faces the camera
+    P = pixel_rays(80, 60, K) * depth[..., None]
+    axis = P[31, 40] - P[29, 40]
+    pole = n[rows, 40]
+    assert np.abs(pole @ (axis / np.linalg.norm(axis))).max() < 1e-9
+    assert np.all(np.einsum("kc,kc->k", pole, P[rows, 40]) < 0)

@@ -9,7 +9,7 @@ import torch
 from flightrecon.config import MapperConfig, load_config
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.image_metrics import depth_l1
-from flightrecon.mapping.mapper import OnlineMapper
+from flightrecon.mapping.mapper import OnlineMapper, seed_share
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world
@@ -26,7 +26,7 @@ def views():
 
 
 def _mapper(**kw) -> OnlineMapper:
-    cfg = MapperConfig(backend="cpu", init_subsample=0.3, **kw)
+    cfg = MapperConfig(backend="cpu", init_subsample=0.3, init_scale_by_resolution=False, **kw)
     return OnlineMapper(cfg, near=0.05, far=10.0, seed=0, device="cpu")
 
 
@@ -85,3 +85,21 @@ def test_frame_without_valid_depth_is_a_warned_no_op(views, caplog):
     assert "no valid depth" in caplog.text
     mapper.add_frame(rgb, depth, K, T)
     assert len(mapper.map) > 0
+
+
+def test_seed_density_on_the_surface_does_not_depend_on_the_image_size(views):
+    _, vs = views
+    T = vs[0][2]
+    counts = {}
+    for w, h in ((W, H), (2 * W, 2 * H)):
+        cam = RGBDCamera(build_world(make_scene("office0", 0), load_config(None), with_drone=False), w, h, 90.0,
+                         0.05, 10.0)
+        rgb, depth = cam.render(T)
+        mapper = OnlineMapper(MapperConfig(backend="cpu", init_subsample=0.01, k_new=0, k_replay=0), seed=0)
+        counts[w] = mapper.add_frame(rgb, depth, cam.K, T).added
+    assert abs(counts[2 * W] / counts[W] - 1.0) < 0.1, counts
+    # the option off: the share is per pixel, so four times the pixels seed about four times the splats
+    off = MapperConfig(init_subsample=0.01, init_scale_by_resolution=False)
+    assert seed_share(off, 2 * W, 2 * H) == seed_share(off, W, H) == 0.01
+    assert seed_share(MapperConfig(init_subsample=0.1), 320, 240) == 0.4
+    assert seed_share(MapperConfig(init_subsample=0.5), 320, 240) == 1.0

@@ -3,8 +3,8 @@
 Centers are back-projected valid depth pixels (a random, seeded share of them); the normal comes from
 the cross product of the depth image's central differences, oriented toward the camera; color is
 the pixel's; both scales are the RMS distance to the 3 nearest new centers (clamped); opacity is
-`init_opacity`. Pixels whose depth or whose 4-neighbourhood is invalid (0, NaN, out of range, or a
-depth jump) seed nothing.
+`init_opacity`. Pixels with invalid depth (0, NaN, out of range) seed nothing; pixels at occlusion
+edges and on thin structures seed splats with one-sided normals (see `depth_normals`).
 """
 
 from __future__ import annotations
@@ -27,31 +27,63 @@ def valid_depth_mask(depth: np.ndarray, near: float, far: float) -> np.ndarray:
         return np.isfinite(d) & (d > near) & (d <= far)
 
 
-def depth_normals(depth: np.ndarray, K: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-frame unit normals (H, W, 3) facing the camera, and the mask where they are defined."""
+def depth_normals(depth: np.ndarray, K: np.ndarray, valid: np.ndarray,
+                  edges: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame unit normals (H, W, 3) facing the camera, and the mask where they are defined.
+
+    The normal is the cross product of the central differences along x and y. Inside one smooth
+    surface that is all; with `edges`, pixels next to an occlusion edge use the one-sided difference
+    toward the neighbour on their own surface, and an axis with no such neighbour (a structure one or
+    two pixels wide, like a lamp pole) leaves the normal the most camera-facing direction across the
+    other axis' tangent (or the reversed ray with neither). Without these, thin structures and object
+    outlines never seed a splat and cannot be reconstructed at all. Creases (both neighbours on the
+    surface but bent) and the image border stay undefined.
+    """
     d = np.where(valid, depth, 0.0).astype(np.float64)
     P = pixel_rays(d.shape[1], d.shape[0], K) * d[..., None]
     H, W = d.shape
     n = np.zeros((H, W, 3))
     ok = np.zeros((H, W), bool)
-    dx = P[1:-1, 2:] - P[1:-1, :-2]
-    dy = P[2:, 1:-1] - P[:-2, 1:-1]
-    c = np.cross(dy, dx)  # faces the camera for a frontal plane: (0,1,0) x (1,0,0) = (0,0,-1)
+    Pc = P[1:-1, 1:-1]
     center = d[1:-1, 1:-1]
-    nb = np.stack([d[1:-1, 2:], d[1:-1, :-2], d[2:, 1:-1], d[:-2, 1:-1]])
-    good = valid[1:-1, 1:-1] & np.all(nb > 0, axis=0)
-    good &= np.all(np.abs(nb - center) <= _MAX_REL_DEPTH_JUMP * center, axis=0)
+    nb = np.stack([d[1:-1, 2:], d[1:-1, :-2], d[2:, 1:-1], d[:-2, 1:-1]])  # right, left, down, up
+    Pnb = np.stack([P[1:-1, 2:], P[1:-1, :-2], P[2:, 1:-1], P[:-2, 1:-1]])
+    same = (nb > 0) & (np.abs(nb - center) <= _MAX_REL_DEPTH_JUMP * center)
     # Inverse depth is affine in pixel coordinates on a plane: a second difference far from zero
     # means a crease or an occlusion edge inside the stencil, where the cross product mixes surfaces.
     with np.errstate(divide="ignore"):
         inv = np.where(nb > 0, 1.0 / np.where(nb > 0, nb, 1.0), 0.0)
         inv_c = 1.0 / np.where(center > 0, center, 1.0)
-    bend = np.maximum(np.abs(inv[0] + inv[1] - 2 * inv_c), np.abs(inv[2] + inv[3] - 2 * inv_c))
-    good &= bend <= _MAX_REL_BEND * inv_c
+    tangents, defined = [], []
+    crease = np.zeros(center.shape, bool)
+    for a in (0, 2):  # x (right, left), y (down, up)
+        both = same[a] & same[a + 1]
+        smooth = np.abs(inv[a] + inv[a + 1] - 2 * inv_c) <= _MAX_REL_BEND * inv_c
+        crease |= both & ~smooth
+        t = Pnb[a] - Pnb[a + 1]
+        if edges:
+            t = np.where((~both & same[a])[..., None], Pnb[a] - Pc, t)
+            t = np.where((~both & ~same[a] & same[a + 1])[..., None], Pc - Pnb[a + 1], t)
+            defined.append(same[a] | same[a + 1])
+        else:
+            defined.append(both)
+        tangents.append(t)
+    dx, dy = tangents
+    c = np.cross(dy, dx)  # faces the camera for a frontal plane: (0,1,0) x (1,0,0) = (0,0,-1)
+    good = valid[1:-1, 1:-1] & defined[0] & defined[1] & ~crease
+    if edges:
+        one = valid[1:-1, 1:-1] & (defined[0] ^ defined[1]) & ~crease
+        t = np.where(defined[0][..., None], dx, dy)
+        t = t / np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-30)
+        facing = -Pc - np.einsum("hwc,hwc->hw", -Pc, t)[..., None] * t
+        c = np.where(one[..., None], facing, c)
+        none = valid[1:-1, 1:-1] & ~defined[0] & ~defined[1]
+        c = np.where(none[..., None], -Pc, c)
+        good |= one | none
     norm = np.linalg.norm(c, axis=-1)
-    good &= norm > 0
+    good &= norm > 1e-12 * np.maximum(center, 1e-30) ** 2
     c = c / np.maximum(norm, 1e-30)[..., None]
-    flip = np.einsum("hwc,hwc->hw", c, P[1:-1, 1:-1]) > 0  # must point back toward the camera
+    flip = np.einsum("hwc,hwc->hw", c, Pc) > 0  # must point back toward the camera
     c[flip] *= -1.0
     n[1:-1, 1:-1] = c
     ok[1:-1, 1:-1] = good
@@ -59,10 +91,11 @@ def depth_normals(depth: np.ndarray, K: np.ndarray, valid: np.ndarray) -> tuple[
 
 
 def frame_candidates(rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, *, near: float,
-                     far: float, subsample: float, rng: np.random.Generator) -> dict[str, np.ndarray]:
+                     far: float, subsample: float, rng: np.random.Generator,
+                     edges: bool = True) -> dict[str, np.ndarray]:
     """World points, normals and colors of a random `subsample` share of the usable pixels."""
     valid = valid_depth_mask(depth, near, far)
-    normals_c, ok = depth_normals(depth, K, valid)
+    normals_c, ok = depth_normals(depth, K, valid, edges)
     vs, us = np.nonzero(ok)
     count = int(round(subsample * vs.size))
     pick = np.sort(rng.choice(vs.size, size=count, replace=False)) if count < vs.size else np.arange(vs.size)

@@ -29,6 +29,7 @@ log = logging.getLogger(__name__)
 
 TRAIN_OUTPUTS = ("features", "alpha", "depth", "normal", "distortion")
 _MIN_SCALE = 1e-3  # m; splats finer than a millimetre add nothing at our resolutions
+REFERENCE_PIXELS = 640 * 480  # the paper's image size, where init_subsample is 2DGS-SLAM's share
 
 
 @dataclass
@@ -36,6 +37,18 @@ class FrameStats:
     frame: int
     added: int
     total: int
+
+
+def seed_share(cfg: MapperConfig, width: int, height: int) -> float:
+    """Share of a frame's usable pixels that seed splats (see MapperConfig.init_scale_by_resolution).
+
+    At 320x240 a pixel covers four times the surface it covers at 640x480, so the same share would
+    seed a four times sparser map: on office0 that capped a single frame's fit at ~31 dB after 100
+    iterations against ~40 dB with the density of 10% at 640x480.
+    """
+    if not cfg.init_scale_by_resolution:
+        return cfg.init_subsample
+    return min(1.0, cfg.init_subsample * REFERENCE_PIXELS / (width * height))
 
 
 def default_device(backend: str) -> torch.device:
@@ -82,8 +95,10 @@ class OnlineMapper:
         return FrameStats(index, added, len(self.map))
 
     def _insert(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, index: int) -> int:
+        share = seed_share(self.cfg, depth.shape[1], depth.shape[0])
         cand = splat_init.frame_candidates(rgb, depth, K, T_wc, near=self.near, far=self.far,
-                                           subsample=self.cfg.init_subsample, rng=self.rng)
+                                           subsample=share, rng=self.rng,
+                                           edges=self.cfg.init_edge_normals)
         if len(self.map) > 0:  # the first frame is inserted whole (2DGS-SLAM)
             keep = reject_near(cand["points"], self.map["means"].cpu().numpy(), self.cfg.gamma,
                                self.cfg.one_new_per_voxel)
