@@ -34,6 +34,7 @@ namespace {
 
 constexpr int TS = 16;          // tile side
 constexpr int TP = TS * TS;     // pixels per tile
+constexpr int LANES = 8;        // column group: one AVX2 float vector; a splat visits only the groups its box covers
 constexpr double ALPHA_MIN = 1.0 / 255.0;
 constexpr double ALPHA_MAX = 0.99;
 constexpr double T_MIN = 1e-4;
@@ -94,11 +95,11 @@ struct Bins {
 // Phase timings (seconds) and blend work of the last forward or backward call, for profiling.
 struct Stats {
   double project = 0, bin = 0, sort = 0, blend = 0, reduce = 0, chain = 0;
-  int64_t evals = 0, isects = 0;
+  int64_t evals = 0, blends = 0, isects = 0;  // pixel-splat evaluations, those that blend, tile-splat pairs
   bool by_camera = false;  // timings are then summed over threads (thread-seconds), not wall time
   void add(const Stats& o) {
     project += o.project; bin += o.bin; sort += o.sort; blend += o.blend; reduce += o.reduce;
-    chain += o.chain; evals += o.evals; isects += o.isects;
+    chain += o.chain; evals += o.evals; blends += o.blends; isects += o.isects;
   }
 };
 Stats g_stats;
@@ -351,8 +352,6 @@ inline Hit<S> hit(const S* M, const Row<S>& r, S mx, S o, S x, S near) {
   return h;
 }
 
-constexpr int LANES = 8;  // column group: one AVX2 float vector; a splat visits only the groups its box covers
-
 // A record's pixel range in tile (tx, ty): rows as pixel offsets [p0, p1), column groups [g0, g1).
 struct Span {
   int p0, p1, g0, g1;
@@ -373,8 +372,12 @@ struct FwdOut {
   int32_t *last, *medj;
 };
 
+struct TileWork {
+  int64_t evals = 0, blends = 0;
+};
+
 template <typename S, bool TRACK>
-int64_t forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const Flags& fl,
+TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const Flags& fl,
                      const FwdOut<S>& out) {
   const int tx = tile % st.tiles_x, ty = tile / st.tiles_x;
   alignas(64) S px[TP], py[TP], T[TP], act[TP], w[TP], zz[TP];
@@ -396,7 +399,7 @@ int64_t forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, cons
   }
   const S near = S(st.near), mscale = S(st.far / (st.far - st.near));
   const int64_t b0 = B.offsets[tile], b1 = B.offsets[tile + 1];
-  int64_t evals = 0;
+  int64_t evals = 0, blends = 0;
 #if FR_AVX2
   if constexpr (std::is_same<S, float>::value) {
     // The same per-pixel arithmetic as the generic loop below, in AVX2 registers: one column group
@@ -466,6 +469,7 @@ int64_t forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, cons
           const __m256 stop = _mm256_and_ps(ok, _mm256_cmp_ps(testT, tmin, _CMP_LT_OQ));
           const __m256 blend = _mm256_andnot_ps(stop, ok);
           const int bm = _mm256_movemask_ps(blend), sm = _mm256_movemask_ps(stop);
+          blends += __builtin_popcount(unsigned(bm));
           if (sm) {
             _mm256_store_ps(act + pg, _mm256_andnot_ps(stop, actp));
             row_alive -= __builtin_popcount(unsigned(sm));
@@ -528,7 +532,7 @@ int64_t forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, cons
       for (int p = p00; p < p00 + TS; ++p) w[p] = S(0);
       evals += c1 - c0;
       for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
-  #pragma omp simd reduction(| : any)
+  #pragma omp simd reduction(| : any) reduction(+ : blends)
       for (int p = pg; p < pg + LANES; ++p) {
         const Hit<S> h = hit(M, rw, mx, o, px[p], near);
         const S testT = T[p] * (S(1) - h.a);
@@ -548,6 +552,7 @@ int64_t forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, cons
         act[p] = stop ? S(0) : act[p];
         accA[p] += wp;
         any |= int(blend);
+        blends += int(blend);
       }
       }
       S alive = 0;
@@ -594,7 +599,7 @@ int64_t forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, cons
       out.medj[q] = medj[p];
     }
   }
-  return evals;
+  return TileWork{evals, blends};
 }
 
 Camera camera_of(const torch::Tensor& viewmats, const torch::Tensor& Ks, int64_t c) {
@@ -661,13 +666,17 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
                   fl.track ? last.data_ptr<int32_t>() + c * HW : nullptr,
                   fl.track ? medj.data_ptr<int32_t>() + c * HW : nullptr};
     t0 = omp_get_wtime();
-    int64_t evals = 0;
-#pragma omp parallel for schedule(dynamic, 1) reduction(+ : evals)
-    for (int t = 0; t < tiles; ++t)
-      evals += fl.track ? forward_tile<S, true>(t, B, int(D), st, fl, out)
-                        : forward_tile<S, false>(t, B, int(D), st, fl, out);
+    int64_t evals = 0, blends = 0;
+#pragma omp parallel for schedule(dynamic, 1) reduction(+ : evals, blends)
+    for (int t = 0; t < tiles; ++t) {
+      const TileWork tw = fl.track ? forward_tile<S, true>(t, B, int(D), st, fl, out)
+                                   : forward_tile<S, false>(t, B, int(D), st, fl, out);
+      evals += tw.evals;
+      blends += tw.blends;
+    }
     sc.blend += omp_get_wtime() - t0;
     sc.evals += evals;
+    sc.blends += blends;
   };
   // Many cameras (view selection): a whole camera per thread, so no per-camera fork/join; each
   // camera's result is computed by the same code either way, so batched == single calls exactly.
@@ -697,6 +706,154 @@ struct BwdIn {
   const int32_t *last, *medj;
   const S *gF, *gA, *gN, *gZ, *gM, *gM2, *gMed;                   // upstream gradients
 };
+
+#if FR_AVX2
+constexpr int MAX_D_AVX2 = 16;  // feature widths up to this keep their sums in registers
+
+inline float hsum8(__m256 v) {
+  __m128 s = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
+  s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+  s = _mm_add_ss(s, _mm_movehdup_ps(s));
+  return _mm_cvtss_f32(s);
+}
+
+// The backward blend of one tile for float (not the Fisher mode): the per-pixel arithmetic of the
+// generic loop in backward_tile, in AVX2 registers, with each splat's per-pixel gradient terms summed
+// in 8-lane registers over the groups it covers (one horizontal sum per slot entry at the end)
+// instead of being stored per pixel and reduced over whole box rows.
+void backward_splats_avx2(const Bins<float>& B, int D, const Flags& fl, int tx, int ty, int64_t b0, int maxlast,
+                          const int32_t* row_last, const float* px, const float* py, float* T, float* Pre,
+                          const float* Tot, const float* gA, const float* gZ, const float* gM, const float* gM2,
+                          const float* gMed, const int32_t* last, const int32_t* medj, const float* gF,
+                          const float* gN, int G, float* slots, const Settings& st) {
+  const float nearf = float(st.near);
+  const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f), vnear = _mm256_set1_ps(nearf);
+  const __m256 amax = _mm256_set1_ps(float(ALPHA_MAX)), amin = _mm256_set1_ps(float(ALPHA_MIN));
+  const __m256 rmax = _mm256_set1_ps(1e4f), filt = _mm256_set1_ps(float(FILTER_INV_SQ));
+  const __m256 vmscale = _mm256_set1_ps(float(st.far / (st.far - st.near)));
+  const __m256 vmder = _mm256_set1_ps(float(st.far * st.near / (st.far - st.near)));
+  const __m256 two = _mm256_set1_ps(2.0f), mhalf = _mm256_set1_ps(-0.5f);
+  const __m256 fm2 = _mm256_set1_ps(float(FILTER_INV_SQ) * -2.0f);
+  const bool dz = fl.depth || fl.dist;
+  constexpr int AHEAD = 4;
+  for (int32_t j = 0; j < maxlast; ++j) {
+    const int64_t jj = b0 + j;
+    if (j + AHEAD < maxlast) {
+      const char* nx = reinterpret_cast<const char*>(&B.rec[size_t(B.ids[jj + AHEAD]) * B.R]);
+      _mm_prefetch(nx, _MM_HINT_T0);
+      _mm_prefetch(nx + 60, _MM_HINT_T0);
+    }
+    float* slot = slots + jj * G;
+    const int k = B.ids[jj];
+    const float* q = &B.rec[size_t(k) * B.R];
+    const Span sp = span_of(&B.rect[4 * size_t(k)], tx, ty);
+    const float* M = q;
+    const float mx = q[9], my = q[10], o = q[11];
+    const float* f = q + REC;
+    const int c0 = sp.g0 * LANES, c1 = sp.g1 * LANES;
+    const __m256 vmx = _mm256_set1_ps(mx), vo = _mm256_set1_ps(o);
+    const __m256 m0 = _mm256_set1_ps(M[0]), m1 = _mm256_set1_ps(M[1]), m2 = _mm256_set1_ps(M[2]);
+    const __m256 m6 = _mm256_set1_ps(M[6]), m7 = _mm256_set1_ps(M[7]), m8 = _mm256_set1_ps(M[8]);
+    const __m256i vj = _mm256_set1_epi32(j);
+    __m256 acc[NG], accO = zero, accN[3] = {zero, zero, zero}, accF[MAX_D_AVX2];
+    for (int e = 0; e < NG; ++e) acc[e] = zero;
+    for (int d = 0; d < D; ++d) accF[d] = zero;
+    for (int p00 = sp.p0; p00 < sp.p1; p00 += TS) {
+      if (j >= row_last[p00 / TS]) continue;  // no pixel of this row blends this splat or any later one
+      const Row<float> rw = row_of(M, py[p00], my);
+      const __m256 a0 = _mm256_set1_ps(rw.a0), a1 = _mm256_set1_ps(rw.a1), a2 = _mm256_set1_ps(rw.a2);
+      const __m256 b0v = _mm256_set1_ps(rw.b0), b1v = _mm256_set1_ps(rw.b1), b2v = _mm256_set1_ps(rw.b2);
+      const __m256 l0 = _mm256_set1_ps(rw.l0), l1 = _mm256_set1_ps(rw.l1), l2 = _mm256_set1_ps(rw.l2);
+      const __m256 dy2 = _mm256_set1_ps(rw.dy2), y = _mm256_set1_ps(py[p00]);
+      const __m256 dyc = _mm256_set1_ps(py[p00] - my);
+      for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
+        const __m256 x = _mm256_load_ps(px + pg);
+        const __m256 q0 = _mm256_fmsub_ps(x, a0, b0v), q1 = _mm256_fmsub_ps(x, a1, b1v);
+        const __m256 q2 = _mm256_fmsub_ps(x, a2, b2v);
+        const __m256 nz = _mm256_cmp_ps(q2, zero, _CMP_NEQ_UQ);
+        const __m256 inv = _mm256_div_ps(one, _mm256_blendv_ps(one, q2, nz));
+        const __m256 u = _mm256_mul_ps(q0, inv), v = _mm256_mul_ps(q1, inv);
+        const __m256 rho3 = _mm256_min_ps(_mm256_fmadd_ps(u, u, _mm256_mul_ps(v, v)), rmax);
+        const __m256 dx = _mm256_sub_ps(x, vmx);
+        const __m256 rho2 = _mm256_mul_ps(filt, _mm256_fmadd_ps(dx, dx, dy2));
+        const __m256 use3 = _mm256_cmp_ps(rho3, rho2, _CMP_LE_OQ);
+        const __m256 z = _mm256_blendv_ps(m8, _mm256_fmadd_ps(m6, u, _mm256_fmadd_ps(m7, v, m8)), use3);
+        const __m256 g = exp_neg8(_mm256_mul_ps(mhalf, _mm256_min_ps(rho3, rho2)));
+        const __m256 og = _mm256_mul_ps(vo, g);
+        const __m256 ah = _mm256_min_ps(amax, og);
+        const __m256 lastp = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_load_si256(reinterpret_cast<const __m256i*>(last + pg)), vj));
+        const __m256 blend = _mm256_and_ps(
+            _mm256_and_ps(nz, _mm256_cmp_ps(z, vnear, _CMP_GE_OQ)), _mm256_and_ps(_mm256_cmp_ps(ah, amin, _CMP_GE_OQ), lastp));
+        const __m256i medm = _mm256_cmpeq_epi32(_mm256_load_si256(reinterpret_cast<const __m256i*>(medj + pg)), vj);
+        if (_mm256_movemask_ps(blend) == 0 && _mm256_testz_si256(medm, medm)) continue;  // all terms are 0
+        const __m256 a = _mm256_and_ps(blend, ah);
+        const __m256 zs = _mm256_blendv_ps(vnear, z, blend);
+        const __m256 Tp = _mm256_load_ps(T + pg);
+        const __m256 wp = _mm256_mul_ps(a, Tp);
+        __m256 sf = _mm256_load_ps(gA + pg);
+        for (int d = 0; d < D; ++d) sf = _mm256_fmadd_ps(_mm256_set1_ps(f[d]), _mm256_loadu_ps(gF + size_t(d) * TP + pg), sf);
+        if (fl.normal)
+          for (int c = 0; c < 3; ++c) sf = _mm256_fmadd_ps(_mm256_set1_ps(q[12 + c]), _mm256_loadu_ps(gN + size_t(c) * TP + pg), sf);
+        __m256 dzv = _mm256_and_ps(_mm256_castsi256_ps(medm), _mm256_load_ps(gMed + pg));
+        if (dz) {
+          const __m256 m = _mm256_mul_ps(vmscale, _mm256_sub_ps(one, _mm256_div_ps(vnear, zs)));
+          const __m256 dm = _mm256_div_ps(vmder, _mm256_mul_ps(zs, zs));
+          const __m256 gz = _mm256_load_ps(gZ + pg), gm = _mm256_load_ps(gM + pg), gm2 = _mm256_load_ps(gM2 + pg);
+          sf = _mm256_fmadd_ps(gz, zs, sf);
+          sf = _mm256_fmadd_ps(gm, m, sf);
+          sf = _mm256_fmadd_ps(_mm256_mul_ps(gm2, m), m, sf);
+          const __m256 inner = _mm256_fmadd_ps(_mm256_mul_ps(_mm256_mul_ps(gm2, two), m), dm, _mm256_fmadd_ps(gm, dm, gz));
+          dzv = _mm256_fmadd_ps(wp, inner, dzv);
+        }
+        const __m256 pre = _mm256_fmadd_ps(wp, sf, _mm256_load_ps(Pre + pg));
+        _mm256_store_ps(Pre + pg, pre);
+        const __m256 rest = _mm256_sub_ps(_mm256_load_ps(Tot + pg), pre);
+        const __m256 dA = _mm256_sub_ps(_mm256_mul_ps(Tp, sf), _mm256_div_ps(rest, _mm256_sub_ps(one, a)));
+        const __m256 free_a = _mm256_and_ps(blend, _mm256_cmp_ps(og, amax, _CMP_LT_OQ));
+        const __m256 dOp = _mm256_and_ps(free_a, _mm256_mul_ps(dA, g));
+        const __m256 drho = _mm256_and_ps(free_a, _mm256_mul_ps(_mm256_mul_ps(mhalf, dA), a));
+        const __m256 dzu = _mm256_and_ps(use3, dzv);
+        const __m256 d2 = _mm256_mul_ps(drho, two);
+        const __m256 du = _mm256_fmadd_ps(m6, dzu, _mm256_and_ps(use3, _mm256_mul_ps(d2, u)));
+        const __m256 dv = _mm256_fmadd_ps(m7, dzu, _mm256_and_ps(use3, _mm256_mul_ps(d2, v)));
+        const __m256 df = _mm256_andnot_ps(use3, _mm256_mul_ps(drho, fm2));
+        const __m256 dmx = _mm256_mul_ps(df, dx), dmy = _mm256_mul_ps(df, dyc);
+        const __m256 dq0 = _mm256_mul_ps(du, inv), dq1 = _mm256_mul_ps(dv, inv);
+        const __m256 dq2 = _mm256_mul_ps(_mm256_sub_ps(zero, _mm256_fmadd_ps(du, u, _mm256_mul_ps(dv, v))), inv);
+        const __m256 k0 = _mm256_fmsub_ps(x, m6, m0), k1 = _mm256_fmsub_ps(x, m7, m1), k2 = _mm256_fmsub_ps(x, m8, m2);
+        // q = k x l: dk = l x dq, dl = dq x k
+        const __m256 dk0 = _mm256_fmsub_ps(l1, dq2, _mm256_mul_ps(l2, dq1));
+        const __m256 dk1 = _mm256_fmsub_ps(l2, dq0, _mm256_mul_ps(l0, dq2));
+        const __m256 dk2 = _mm256_fmsub_ps(l0, dq1, _mm256_mul_ps(l1, dq0));
+        const __m256 dl0 = _mm256_fmsub_ps(dq1, k2, _mm256_mul_ps(dq2, k1));
+        const __m256 dl1 = _mm256_fmsub_ps(dq2, k0, _mm256_mul_ps(dq0, k2));
+        const __m256 dl2 = _mm256_fmsub_ps(dq0, k1, _mm256_mul_ps(dq1, k0));
+        acc[0] = _mm256_sub_ps(acc[0], dk0);
+        acc[1] = _mm256_sub_ps(acc[1], dk1);
+        acc[2] = _mm256_sub_ps(acc[2], dk2);
+        acc[3] = _mm256_sub_ps(acc[3], dl0);
+        acc[4] = _mm256_sub_ps(acc[4], dl1);
+        acc[5] = _mm256_sub_ps(acc[5], dl2);
+        acc[6] = _mm256_add_ps(acc[6], _mm256_fmadd_ps(x, dk0, _mm256_fmadd_ps(y, dl0, _mm256_mul_ps(u, dzu))));
+        acc[7] = _mm256_add_ps(acc[7], _mm256_fmadd_ps(x, dk1, _mm256_fmadd_ps(y, dl1, _mm256_mul_ps(v, dzu))));
+        acc[8] = _mm256_add_ps(acc[8], _mm256_fmadd_ps(x, dk2, _mm256_fmadd_ps(y, dl2, dzv)));
+        acc[9] = _mm256_add_ps(acc[9], dmx);
+        acc[10] = _mm256_add_ps(acc[10], dmy);
+        accO = _mm256_add_ps(accO, dOp);
+        if (fl.normal)
+          for (int c = 0; c < 3; ++c) accN[c] = _mm256_fmadd_ps(wp, _mm256_loadu_ps(gN + size_t(c) * TP + pg), accN[c]);
+        for (int d = 0; d < D; ++d) accF[d] = _mm256_fmadd_ps(wp, _mm256_loadu_ps(gF + size_t(d) * TP + pg), accF[d]);
+        _mm256_store_ps(T + pg, _mm256_mul_ps(Tp, _mm256_sub_ps(one, a)));
+      }
+    }
+    for (int e = 0; e < NG; ++e) slot[e] = hsum8(acc[e]);
+    slot[NG] = hsum8(accO);
+    if (fl.normal)
+      for (int c = 0; c < 3; ++c) slot[NG + 1 + c] = hsum8(accN[c]);
+    for (int d = 0; d < D; ++d) slot[NG + 4 + d] = hsum8(accF[d]);
+  }
+}
+#endif
 
 // Slot layout per (tile, splat): geometric 11 (T_u, T_v, T_w, means2d), opacity, normal 3, feat D.
 // In Fisher mode: NSYM outer-product entries, sum of dL/do^2, sum of w^2.
@@ -748,6 +905,15 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
   const S near = S(st.near), mscale = S(st.far / (st.far - st.near));
   const S mder = S(st.far * st.near / (st.far - st.near));
   const int64_t b0 = B.offsets[tile];
+#if FR_AVX2
+  if constexpr (std::is_same<S, float>::value && !FISHER) {
+    if (D <= MAX_D_AVX2) {
+      backward_splats_avx2(B, D, fl, tx, ty, b0, maxlast, row_last, px, py, T, Pre, Tot, gA, gZ, gM, gM2, gMed,
+                           last, medj, gF.data(), gN.data(), G, slots, st);
+      return;
+    }
+  }
+#endif
   for (int32_t j = 0; j < maxlast; ++j) {
     const int64_t jj = b0 + j;
     S* slot = slots + jj * G;
@@ -1047,7 +1213,7 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
     return std::map<std::string, double>{
         {"project_s", g_stats.project}, {"bin_s", g_stats.bin}, {"sort_s", g_stats.sort},
         {"blend_s", g_stats.blend}, {"reduce_s", g_stats.reduce}, {"chain_s", g_stats.chain},
-        {"evals", double(g_stats.evals)}, {"isects", double(g_stats.isects)},
+        {"evals", double(g_stats.evals)}, {"blends", double(g_stats.blends)}, {"isects", double(g_stats.isects)},
         {"by_camera", double(g_stats.by_camera)}};
   }, "phase timings and pixel-splat evaluations of the last forward/backward call");
 }
