@@ -128,8 +128,39 @@ void conic_box(const S* Tu, const S* Tv, const S* Tw, S cs, S& cx, S& cy, S& ex,
   ey = std::sqrt(std::max(cy * cy - sy, S(1e-4)));
 }
 
+// Per-splat values that do not depend on the camera, computed once per call instead of once per
+// camera: the bounding-sphere radius of the frustum test and the opacity-aware cutoff (rho_max,
+// <= 0 when the splat can never reach ALPHA_MIN) with its conic scale and filter reach.
 template <typename S>
-void project_camera(const S* means, const S* U, const S* V, const S* n, const S* opac, int64_t N,
+struct SplatConsts {
+  std::vector<S> rad, cut, freach;
+  std::vector<double> rho_max;
+};
+
+template <typename S>
+SplatConsts<S> splat_consts(const S* U, const S* V, const S* opac, int64_t N) {
+  SplatConsts<S> c;
+  c.rad.resize(N);
+  c.cut.resize(N);
+  c.freach.resize(N);
+  c.rho_max.resize(N);
+#pragma omp parallel for schedule(static)
+  for (int64_t i = 0; i < N; ++i) {
+    const S* u = U + 3 * i;
+    const S* v = V + 3 * i;
+    c.rad[i] = S(CUTOFF * 1.01) * std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    // alpha = o exp(-rho / 2) reaches ALPHA_MIN only where rho <= 2 ln(o / ALPHA_MIN) (plus a
+    // margin for float error); never more than the fixed CUTOFF, which is the o = 1 case
+    const double rho_max = std::min(2.0 * std::log(double(opac[i]) / ALPHA_MIN) + RHO_MARGIN, CUTOFF * CUTOFF);
+    c.rho_max[i] = rho_max;
+    c.cut[i] = rho_max > 0 ? S(std::sqrt(rho_max)) : S(0);
+    c.freach[i] = rho_max > 0 ? S(std::min(FILTER_REACH, std::sqrt(rho_max / FILTER_INV_SQ))) : S(0);
+  }
+  return c;
+}
+
+template <typename S>
+void project_camera(const S* means, const S* U, const S* V, const S* n, const SplatConsts<S>& sc, int64_t N,
                     const Camera& cam, const Settings& st, Projected<S>& P) {
   // Frustum planes through the camera center, widened by the low-pass filter's reach in pixels
   // (plus a margin): a splat whose bounding sphere (radius CUTOFF |(U, V)|, which holds the cutoff
@@ -153,9 +184,7 @@ void project_camera(const S* means, const S* U, const S* V, const S* n, const S*
       pc[r] = S(Rr[0]) * means[3 * i] + S(Rr[1]) * means[3 * i + 1] + S(Rr[2]) * means[3 * i + 2] + S(cam.t[r]);
     }
     if (pinhole) {
-      const S* u = U + 3 * i;
-      const S* v = V + 3 * i;
-      const S rad = S(CUTOFF * 1.01) * std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+      const S rad = sc.rad[i];
       bool out = !(pc[2] > S(st.near));
       for (int k = 0; k < 4; ++k)
         out = out || S(planes[k][0]) * pc[k / 2] + S(planes[k][1]) * pc[2] < -rad;
@@ -198,13 +227,11 @@ void project_camera(const S* means, const S* U, const S* V, const S* n, const S*
     S loy = std::min(by - bey, cy - S(FILTER_REACH)), hiy = std::max(by + bey, cy + S(FILTER_REACH));
     if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) continue;
     P.radii[i] = int(std::ceil(S(CUTOFF) * std::max(ex, ey)));  // geometric: independent of opacity
-    // Opacity-aware extent: alpha = o exp(-rho / 2) reaches ALPHA_MIN only where
-    // rho <= 2 ln(o / ALPHA_MIN) (plus a margin for float error), so the binned box (and with it
-    // the tiles and the blend's rows and column groups) shrinks with the opacity; never wider than
-    // the fixed CUTOFF / FILTER_REACH box above, which is the o = 1 case.
-    const double rho_max = std::min(2.0 * std::log(double(opac[i]) / ALPHA_MIN) + RHO_MARGIN, CUTOFF * CUTOFF);
-    if (!(rho_max > 0)) continue;
-    const S cut = S(std::sqrt(rho_max)), freach = S(std::min(FILTER_REACH, std::sqrt(rho_max / FILTER_INV_SQ)));
+    // Opacity-aware extent (SplatConsts): the binned box (and with it the tiles and the blend's rows
+    // and column groups) shrinks with the opacity; never wider than the fixed CUTOFF / FILTER_REACH
+    // box above, which is the o = 1 case.
+    if (!(sc.rho_max[i] > 0)) continue;
+    const S cut = sc.cut[i], freach = sc.freach[i];
     conic_box(M, M + 3, M + 6, cut, bx, by, bex, bey, bd);
     lox = std::min(bx - bex, cx - freach), hix = std::max(bx + bex, cx + freach);
     loy = std::min(by - bey, cy - freach), hiy = std::max(by + bey, cy + freach);
@@ -245,11 +272,14 @@ Bins<S> bin_and_sort(const Projected<S>& P, int64_t N, const S* opac, const S* f
   const double t0 = omp_get_wtime();
   Bins<S> b;
   // Records of the splats that touch the image, packed in id order (sequential reads).
-  for (int64_t i = 0; i < N; ++i) {
+  b.splat.resize(N);
+  int64_t V = 0;
+  for (int64_t i = 0; i < N; ++i) {  // branch-free: visibility is random in id order
     const int* r = &P.rect[4 * i];
-    if (r[0] <= r[2] && r[1] <= r[3]) b.splat.push_back(int32_t(i));
+    b.splat[V] = int32_t(i);
+    V += (r[0] <= r[2]) & (r[1] <= r[3]);
   }
-  const int64_t V = int64_t(b.splat.size());
+  b.splat.resize(V);
   b.R = REC + D;
   b.rect.resize(4 * size_t(V));
   b.rec.resize(size_t(V) * b.R);
@@ -648,12 +678,15 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
   for (int64_t c = 0; c < C; ++c) cams.push_back(camera_of(viewmats, Ks, c));
   std::vector<Stats> per(C);
   const S *pm = means.data_ptr<S>(), *pu = U.data_ptr<S>(), *pv = V.data_ptr<S>(), *pn = n.data_ptr<S>();
+  const double tc = omp_get_wtime();
+  const SplatConsts<S> consts = splat_consts(pu, pv, opac.data_ptr<S>(), N);
+  const double consts_s = omp_get_wtime() - tc;
   // One camera: project, bin, sort, blend. Its inner parallel loops run serially when called from
   // the camera-parallel region below (nested parallelism is off), in parallel otherwise.
   auto one = [&](int64_t c, Projected<S>& P) {
     Stats& sc = per[c];
     double t0 = omp_get_wtime();
-    project_camera<S>(pm, pu, pv, pn, opac.data_ptr<S>(), N, cams[c], st, P);
+    project_camera<S>(pm, pu, pv, pn, consts, N, cams[c], st, P);
     sc.project += omp_get_wtime() - t0;
     std::copy(P.radii.begin(), P.radii.end(), radii.data_ptr<int32_t>() + c * N);
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
@@ -695,6 +728,7 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
   g_stats = Stats();
   g_stats.by_camera = by_camera;
   for (const Stats& sc : per) g_stats.add(sc);
+  g_stats.project += consts_s;
   return {feat_img, alpha, normal, zsum, msum, m2sum, median, last, medj, radii};
 }
 
@@ -1099,10 +1133,13 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
   const bool dz = fl.depth || fl.dist;
   Projected<S> P(N);
   g_stats = Stats();
+  const double tc = omp_get_wtime();
+  const SplatConsts<S> consts = splat_consts(U.data_ptr<S>(), V.data_ptr<S>(), opac.data_ptr<S>(), N);
+  g_stats.project += omp_get_wtime() - tc;
   for (int64_t c = 0; c < C; ++c) {
     const Camera cam = camera_of(viewmats, Ks, c);
     double t0 = omp_get_wtime();
-    project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), opac.data_ptr<S>(), N, cam,
+    project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), consts, N, cam,
                       st, P);
     g_stats.project += omp_get_wtime() - t0;
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
