@@ -3,7 +3,8 @@
 Trains on a recorded dataset (a survey flight: `flightrecon fly office0 --survey`) exactly as
 `flightrecon map` does. Per dataset it reports the median and mean wall time of one `add_frame`,
 the map.ply size scaled to 100 training frames, and (with --quality) PSNR / SSIM / depth L1 on the
-held-out views (every `--holdout`-th frame) and PSNR on the training views.
+held-out views (every `--holdout`-th frame) and on the training views, plus the held-out views' share
+of pixels seen by a training view (`test_coverage`) and PSNR / depth L1 on those pixels alone.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ import torch
 
 from flightrecon.config import load_config
 from flightrecon.dataset import load_dataset
-from flightrecon.mapping.offline import evaluate_view, mean_metrics, train_on_dataset
+from flightrecon.mapping.offline import (evaluate_view, masked_metrics, mean_metrics, train_on_dataset,
+                                         training_coverage)
 from flightrecon.mapping.ply import save_map
 
 from flightrecon.bench.common import report
@@ -52,13 +54,20 @@ def run(args: argparse.Namespace) -> dict:
                "s_per_frame_mean": float(np.mean(res.seconds)), "splats": len(res.mapper.map),
                "mb_per_100_frames": size / 1e6 * 100.0 / max(1, len(res.train))}
         if args.quality:
+            training = [ds[i] for i in res.train]
             for split, idx in (("test", res.test), ("train", res.train)):
                 views = []
                 for i in idx:
                     f = ds[i]
-                    views.append(evaluate_view(res.mapper, f.rgb, f.depth, f.K, f.T_wc)[0])
+                    m, color, depth = evaluate_view(res.mapper, f.rgb, f.depth, f.K, f.T_wc)
+                    if split == "test":  # scores where some training view saw the surface
+                        covered = training_coverage(f, training)
+                        m["coverage"] = float(covered.sum() / max(1, (f.depth > 0).sum()))
+                        m.update({f"{k}_covered": v for k, v in
+                                  masked_metrics(color, depth, f.rgb, f.depth, covered).items()})
+                    views.append(m)
                 for k, v in mean_metrics(views).items():
-                    row[f"{split}_{k}"] = v * 100.0 if k == "depth_l1" else v
+                    row[f"{split}_{k}"] = v * 100.0 if k.startswith("depth_l1") else v
             row = {k.replace("depth_l1", "depth_l1_cm"): v for k, v in row.items()}
         rows.append(row)
     return report("map", rows, args.out, extra={"note": "wall times on a shared machine; see machine.cores"})

@@ -3,6 +3,10 @@
 Shared by `flightrecon map` (which writes the results) and `flightrecon bench map` (which times it).
 Frames are fed in recording order, one `add_frame` each, except the held-out ones: with holdout k,
 frames k-1, 2k-1, ... (every k-th, never the first) are kept for evaluation only.
+
+A held-out pixel whose surface no training view saw cannot be rendered right by any mapper, so the
+held-out scores are also given on the covered pixels (`training_coverage`): that separates a gap in
+the survey from a gap in fitting.
 """
 
 from __future__ import annotations
@@ -15,7 +19,8 @@ import numpy as np
 import torch
 
 from flightrecon.config import ScenarioConfig
-from flightrecon.dataset import Dataset
+from flightrecon.dataset import Dataset, Frame
+from flightrecon.geometry import backproject_depth, project_points
 from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim
 from flightrecon.mapping.mapper import FrameStats, OnlineMapper
 
@@ -68,6 +73,45 @@ def evaluate_view(mapper: OnlineMapper, rgb: np.ndarray, depth: np.ndarray, K: n
     return metrics, color.numpy(), d[..., 0].numpy()
 
 
+def training_coverage(view: Frame, training: list[Frame], max_footprint: float = 1.5, rel_tol: float = 0.02,
+                      abs_tol: float = 0.03) -> np.ndarray:
+    """(H, W) mask of the view's valid-depth pixels whose surface point a training frame saw at least as sharply.
+
+    Each pixel is back-projected with the view's depth and projected into every training frame; it is
+    covered where it lands inside that frame with a depth within max(abs_tol, rel_tol * z) of the
+    depth the frame observed there (so a point hidden behind another surface does not count), seen
+    with a pixel footprint at most `max_footprint` times the view's own (focal length over depth: a
+    wall seen only from across the room cannot be rendered sharp from close up); inf: seen at all.
+    """
+    points, valid = backproject_depth(view.depth, view.K, view.T_wc)
+    footprint = view.depth[valid] / view.K[0, 0]
+    seen = np.zeros(len(points), bool)
+    for f in training:
+        H, W = f.depth.shape
+        uv, z = project_points(points, f.K, f.T_wc)
+        u, v = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+        inside = (z > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        obs = np.zeros_like(z)
+        obs[inside] = f.depth[v[inside].astype(int), u[inside].astype(int)]
+        seen |= (inside & (obs > 0) & (np.abs(obs - z) <= np.maximum(abs_tol, rel_tol * z))
+                 & (z / f.K[0, 0] <= max_footprint * footprint))
+    mask = np.zeros(valid.shape, bool)
+    mask[valid] = seen
+    return mask
+
+
+def masked_metrics(color: np.ndarray, depth: np.ndarray, rgb: np.ndarray, observed: np.ndarray,
+                   mask: np.ndarray) -> dict:
+    """PSNR and depth L1 (m) of renders against observations over the pixels in `mask` only."""
+    if not mask.any():
+        return {"psnr": float("nan"), "depth_l1": float("nan")}
+    mse = float(np.mean(np.square(color[mask] - np.asarray(rgb, np.float64)[mask])))
+    return {"psnr": 10.0 * np.log10(1.0 / max(mse, 1e-20)),
+            "depth_l1": float(np.mean(np.abs(depth[mask] - np.asarray(observed, np.float64)[mask])))}
+
+
 def mean_metrics(rows: list[dict]) -> dict:
-    keys = ("psnr", "ssim", "depth_l1")
-    return {k: float(np.mean([r[k] for r in rows])) for k in keys} if rows else {}
+    if not rows:
+        return {}
+    keys = [k for k in rows[0] if isinstance(rows[0][k], float)]
+    return {k: float(np.mean([r[k] for r in rows])) for k in keys}
