@@ -34,28 +34,32 @@ class SparseAdam:
 
     @torch.no_grad()
     def step(self, leaves: dict[str, torch.Tensor], visible: torch.Tensor) -> None:
-        """Adam update of the rows in `visible` (index tensor) from `leaves[*].grad`; grads cleared."""
+        """Adam update of the rows in `visible` (index tensor) from `leaves[*].grad`; grads cleared.
+
+        One gather per column (index_select), in-place moment updates on the gathered rows and one
+        scatter back (index_copy_): the fewest passes over the visible rows."""
         b1, b2 = self.betas
         steps = self.gmap["adam_step"]
-        t = steps[visible] + 1
-        steps[visible] = t
+        t = steps.index_select(0, visible).add_(1)
+        steps.index_copy_(0, visible, t)
         t = t.to(torch.float32)
-        bc1 = 1.0 - torch.pow(b1, t)
-        bc2_sqrt = torch.sqrt(1.0 - torch.pow(b2, t))
+        step_size = torch.pow(b1, t).neg_().add_(1.0).reciprocal_()  # 1 / bias correction 1
+        bc2_sqrt = torch.pow(b2, t).neg_().add_(1.0).sqrt_()
         for name, p in leaves.items():
             g = p.grad
             if g is None:
                 continue
             lr = self.lrs.get(name, 0.0)
             if lr > 0.0:
-                g = g[visible]
+                g = g.index_select(0, visible)
                 m_col = self.gmap[f"adam_m.{name}"]
                 v_col = self.gmap[f"adam_v.{name}"]
-                m = m_col[visible].mul_(b1).add_(g, alpha=1.0 - b1)
-                v = v_col[visible].mul_(b2).addcmul_(g, g, value=1.0 - b2)
-                m_col[visible] = m
-                v_col[visible] = v
+                m = m_col.index_select(0, visible).mul_(b1).add_(g, alpha=1.0 - b1)
+                v = v_col.index_select(0, visible).mul_(b2).addcmul_(g, g, value=1.0 - b2)
+                m_col.index_copy_(0, visible, m)
+                v_col.index_copy_(0, visible, v)
                 shape = (-1,) + (1,) * (m.dim() - 1)
-                denom = (v.sqrt() / bc2_sqrt.view(shape)).add_(self.eps)
-                p[visible] -= lr * (m / bc1.view(shape)) / denom
+                denom = v.sqrt_().div_(bc2_sqrt.view(shape)).add_(self.eps)
+                update = m.mul_(step_size.view(shape)).div_(denom).mul_(lr)
+                p.index_copy_(0, visible, p.index_select(0, visible).sub_(update))
             p.grad = None
