@@ -89,7 +89,7 @@ def _fwd_bwd(splats, vm, K, w, h):
     sum(getattr(out, k).sum() for k in MAPPING).backward()
 
 
-def _stats_row(label: str, stats: dict, threads: int) -> dict:
+def _stats_row(label: str, stats: dict, threads: int, pixels: int) -> dict:
     row = {"row": label}
     row.update({k: round(v * 1e3, 2) for k, v in stats.items() if k.endswith("_s")})
     # camera-parallel runs report thread-seconds; tile-parallel runs report wall time on all threads
@@ -98,7 +98,11 @@ def _stats_row(label: str, stats: dict, threads: int) -> dict:
     if stats.get("evals"):
         rate = stats["evals"] / max(stats["blend_s"], 1e-9) / cores / 1e6
         row.update({"evals_M": round(stats["evals"] / 1e6, 1), "blend_M_per_s_core": round(rate, 1),
-                    "of_ceiling": round(rate / CEILING_M_PER_CORE, 3)})
+                    "of_ceiling": round(rate / CEILING_M_PER_CORE, 3),
+                    # evaluated vs blending (alpha >= 1/255, pixel not terminated) splats per pixel:
+                    # the gap is the work the tile/row/8-column-group visiting order wastes
+                    "evals_per_px": round(stats["evals"] / pixels, 1),
+                    "blends_per_px": round(stats.get("blends", 0) / pixels, 1)})
     return row
 
 
@@ -111,10 +115,10 @@ def run(args) -> dict:
         for (w, h) in ((640, 480), (160, 120)):
             vm, K = _camera(w, h)
             t = time_call(lambda: _fwd(splats, vm, K, w, h, MAPPING), repeat=args.repeat)
-            profile.append(_stats_row(f"{n} {w}x{h} forward", ext.last_stats(), threads))
+            profile.append(_stats_row(f"{n} {w}x{h} forward", ext.last_stats(), threads, w * h))
             rows.append({"splats": n, "image": f"{w}x{h}", "workload": "forward", "ms": t["median_s"] * 1e3})
             tb = time_call(lambda: _fwd_bwd(splats, vm, K, w, h), repeat=args.repeat)
-            profile.append(_stats_row(f"{n} {w}x{h} backward", ext.last_stats(), threads))
+            profile.append(_stats_row(f"{n} {w}x{h} backward", ext.last_stats(), threads, w * h))
             rows.append({"splats": n, "image": f"{w}x{h}", "workload": "forward+backward",
                          "ms": tb["median_s"] * 1e3})
             # dense reference on a downscaled copy of the same camera, scaled back linearly in pixels
@@ -133,7 +137,8 @@ def run(args) -> dict:
         per_cam = torch.rand(args.batch, n, 1, generator=g)
         batch_splats = splats[:4] + [per_cam]
         t = time_call(lambda: _fwd(batch_splats, vm, K, 160, 120, ("features",)), repeat=args.repeat)
-        profile.append(_stats_row(f"{n} 160x120 x{args.batch} batch", ext.last_stats(), threads))
+        profile.append(_stats_row(f"{n} 160x120 x{args.batch} batch", ext.last_stats(), threads,
+                                  args.batch * 160 * 120))
         rows.append({"splats": n, "image": "160x120", "workload": f"{args.batch}-camera 1-channel batch",
                      "ms": t["median_s"] * 1e3})
     targets = {"640x480 200k forward": "<= 100 ms", "640x480 200k forward+backward": "<= 300 ms",
