@@ -361,6 +361,39 @@ inline Row<S> row_of(const S* M, S y, S my) {
   return r;
 }
 
+#if FR_AVX2
+// The AVX2 form of `hit` at 8 pixels of a row: ray-splat intersection (u, v) with its reciprocal,
+// the screen-space low-pass fallback, depth and Gaussian weight. Shared by the forward and backward
+// loops so both evaluate the same alpha.
+struct RowVec {
+  __m256 a0, a1, a2, b0, b1, b2, dy2;
+};
+inline RowVec row_vec(const Row<float>& rw) {
+  return {_mm256_set1_ps(rw.a0), _mm256_set1_ps(rw.a1), _mm256_set1_ps(rw.a2), _mm256_set1_ps(rw.b0),
+          _mm256_set1_ps(rw.b1), _mm256_set1_ps(rw.b2), _mm256_set1_ps(rw.dy2)};
+}
+struct Hit8 {
+  __m256 nz, inv, u, v, dx, use3, z, g;
+};
+inline Hit8 hit8(__m256 x, const RowVec& r, __m256 vmx, __m256 m6, __m256 m7, __m256 m8) {
+  const __m256 one = _mm256_set1_ps(1.0f);
+  Hit8 h;
+  const __m256 q0 = _mm256_fmsub_ps(x, r.a0, r.b0), q1 = _mm256_fmsub_ps(x, r.a1, r.b1);
+  const __m256 q2 = _mm256_fmsub_ps(x, r.a2, r.b2);
+  h.nz = _mm256_cmp_ps(q2, _mm256_setzero_ps(), _CMP_NEQ_UQ);
+  h.inv = _mm256_div_ps(one, _mm256_blendv_ps(one, q2, h.nz));
+  h.u = _mm256_mul_ps(q0, h.inv);
+  h.v = _mm256_mul_ps(q1, h.inv);
+  const __m256 rho3 = _mm256_min_ps(_mm256_fmadd_ps(h.u, h.u, _mm256_mul_ps(h.v, h.v)), _mm256_set1_ps(1e4f));
+  h.dx = _mm256_sub_ps(x, vmx);
+  const __m256 rho2 = _mm256_mul_ps(_mm256_set1_ps(float(FILTER_INV_SQ)), _mm256_fmadd_ps(h.dx, h.dx, r.dy2));
+  h.use3 = _mm256_cmp_ps(rho3, rho2, _CMP_LE_OQ);
+  h.z = _mm256_blendv_ps(m8, _mm256_fmadd_ps(m6, h.u, _mm256_fmadd_ps(m7, h.v, m8)), h.use3);
+  h.g = exp_neg8(_mm256_mul_ps(_mm256_set1_ps(-0.5f), _mm256_min_ps(rho3, rho2)));
+  return h;
+}
+#endif
+
 template <typename S>
 inline Hit<S> hit(const S* M, const Row<S>& r, S mx, S o, S x, S near) {
   Hit<S> h;
@@ -447,7 +480,6 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
     const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f), vnear = _mm256_set1_ps(near);
     const __m256 amax = _mm256_set1_ps(float(ALPHA_MAX)), amin = _mm256_set1_ps(float(ALPHA_MIN));
     const __m256 tmin = _mm256_set1_ps(float(T_MIN)), half = _mm256_set1_ps(0.5f);
-    const __m256 rmax = _mm256_set1_ps(1e4f), filt = _mm256_set1_ps(float(FILTER_INV_SQ));
     const __m256 vmscale = _mm256_set1_ps(mscale);
     constexpr int AHEAD = 8;
     for (int64_t jj = b0; jj < b1 && rows_alive > 0; ++jj) {
@@ -474,22 +506,11 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
         if (row_alive == 0) continue;  // every pixel of this row has terminated
         const Row<float> rw = row_of(M, py[p00], my);
         evals += c1 - c0;
-        const __m256 a0 = _mm256_set1_ps(rw.a0), a1 = _mm256_set1_ps(rw.a1), a2 = _mm256_set1_ps(rw.a2);
-        const __m256 b0v = _mm256_set1_ps(rw.b0), b1v = _mm256_set1_ps(rw.b1), b2v = _mm256_set1_ps(rw.b2);
-        const __m256 dy2 = _mm256_set1_ps(rw.dy2);
+        const RowVec rv = row_vec(rw);
         for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
           const __m256 x = _mm256_load_ps(px + pg);
-          const __m256 q0 = _mm256_fmsub_ps(x, a0, b0v), q1 = _mm256_fmsub_ps(x, a1, b1v);
-          const __m256 q2 = _mm256_fmsub_ps(x, a2, b2v);
-          const __m256 nz = _mm256_cmp_ps(q2, zero, _CMP_NEQ_UQ);
-          const __m256 inv = _mm256_div_ps(one, _mm256_blendv_ps(one, q2, nz));
-          const __m256 u = _mm256_mul_ps(q0, inv), v = _mm256_mul_ps(q1, inv);
-          const __m256 rho3 = _mm256_min_ps(_mm256_fmadd_ps(u, u, _mm256_mul_ps(v, v)), rmax);
-          const __m256 dx = _mm256_sub_ps(x, vmx);
-          const __m256 rho2 = _mm256_mul_ps(filt, _mm256_fmadd_ps(dx, dx, dy2));
-          const __m256 use3 = _mm256_cmp_ps(rho3, rho2, _CMP_LE_OQ);
-          const __m256 z = _mm256_blendv_ps(m8, _mm256_fmadd_ps(m6, u, _mm256_fmadd_ps(m7, v, m8)), use3);
-          const __m256 g = exp_neg8(_mm256_mul_ps(_mm256_set1_ps(-0.5f), _mm256_min_ps(rho3, rho2)));
+          const Hit8 h = hit8(x, rv, vmx, m6, m7, m8);
+          const __m256 nz = h.nz, z = h.z, g = h.g;
           const __m256 a = _mm256_min_ps(amax, _mm256_mul_ps(vo, g));
           const __m256 Tp = _mm256_load_ps(T + pg), actp = _mm256_load_ps(act + pg);
           const __m256 ok = _mm256_and_ps(
@@ -763,7 +784,6 @@ void backward_splats_avx2(const Bins<float>& B, int D, const Flags& fl, int tx, 
   const float nearf = float(st.near);
   const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f), vnear = _mm256_set1_ps(nearf);
   const __m256 amax = _mm256_set1_ps(float(ALPHA_MAX)), amin = _mm256_set1_ps(float(ALPHA_MIN));
-  const __m256 rmax = _mm256_set1_ps(1e4f), filt = _mm256_set1_ps(float(FILTER_INV_SQ));
   const __m256 vmscale = _mm256_set1_ps(float(st.far / (st.far - st.near)));
   const __m256 vmder = _mm256_set1_ps(float(st.far * st.near / (st.far - st.near)));
   const __m256 two = _mm256_set1_ps(2.0f), mhalf = _mm256_set1_ps(-0.5f);
@@ -795,24 +815,14 @@ void backward_splats_avx2(const Bins<float>& B, int D, const Flags& fl, int tx, 
     for (int p00 = sp.p0; p00 < sp.p1; p00 += TS) {
       if (j >= row_last[p00 / TS]) continue;  // no pixel of this row blends this splat or any later one
       const Row<float> rw = row_of(M, py[p00], my);
-      const __m256 a0 = _mm256_set1_ps(rw.a0), a1 = _mm256_set1_ps(rw.a1), a2 = _mm256_set1_ps(rw.a2);
-      const __m256 b0v = _mm256_set1_ps(rw.b0), b1v = _mm256_set1_ps(rw.b1), b2v = _mm256_set1_ps(rw.b2);
+      const RowVec rv = row_vec(rw);
       const __m256 l0 = _mm256_set1_ps(rw.l0), l1 = _mm256_set1_ps(rw.l1), l2 = _mm256_set1_ps(rw.l2);
-      const __m256 dy2 = _mm256_set1_ps(rw.dy2), y = _mm256_set1_ps(py[p00]);
+      const __m256 y = _mm256_set1_ps(py[p00]);
       const __m256 dyc = _mm256_set1_ps(py[p00] - my);
       for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
         const __m256 x = _mm256_load_ps(px + pg);
-        const __m256 q0 = _mm256_fmsub_ps(x, a0, b0v), q1 = _mm256_fmsub_ps(x, a1, b1v);
-        const __m256 q2 = _mm256_fmsub_ps(x, a2, b2v);
-        const __m256 nz = _mm256_cmp_ps(q2, zero, _CMP_NEQ_UQ);
-        const __m256 inv = _mm256_div_ps(one, _mm256_blendv_ps(one, q2, nz));
-        const __m256 u = _mm256_mul_ps(q0, inv), v = _mm256_mul_ps(q1, inv);
-        const __m256 rho3 = _mm256_min_ps(_mm256_fmadd_ps(u, u, _mm256_mul_ps(v, v)), rmax);
-        const __m256 dx = _mm256_sub_ps(x, vmx);
-        const __m256 rho2 = _mm256_mul_ps(filt, _mm256_fmadd_ps(dx, dx, dy2));
-        const __m256 use3 = _mm256_cmp_ps(rho3, rho2, _CMP_LE_OQ);
-        const __m256 z = _mm256_blendv_ps(m8, _mm256_fmadd_ps(m6, u, _mm256_fmadd_ps(m7, v, m8)), use3);
-        const __m256 g = exp_neg8(_mm256_mul_ps(mhalf, _mm256_min_ps(rho3, rho2)));
+        const Hit8 h = hit8(x, rv, vmx, m6, m7, m8);
+        const __m256 nz = h.nz, inv = h.inv, u = h.u, v = h.v, dx = h.dx, use3 = h.use3, z = h.z, g = h.g;
         const __m256 og = _mm256_mul_ps(vo, g);
         const __m256 ah = _mm256_min_ps(amax, og);
         const __m256 lastp = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_load_si256(reinterpret_cast<const __m256i*>(last + pg)), vj));
