@@ -171,6 +171,8 @@ class EvaluationConfig:
     seed: int = _f(0, 0, None, doc="seed of the evaluation viewpoints (independent of the run's seed)")
     every: int = _f(10, 0, 100000, doc="evaluate the map every this many frames during a flight; 0: at the end only")
     height_band: float = _f(0.4, 0.0, 3.0, doc="viewpoint heights are take-off height +- this (m)")
+    snapshots: bool = _f(False, doc="save the map at each in-flight evaluation (snapshots/ in the run folder) so "
+                         "`eval` adds mesh metrics over collected frames; `sweep` turns it on")
 
 
 @dataclass(frozen=True)

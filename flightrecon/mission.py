@@ -33,6 +33,7 @@ from flightrecon.config import ScenarioConfig, load_config, to_toml
 from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import write_trajectory_csv
 from flightrecon.errors import FlightReconError
+from flightrecon.evaluation.run_eval import SNAPSHOTS
 from flightrecon.evaluation.views import EvaluationSet
 from flightrecon.fileio import atomic_path, write_json, write_text
 from flightrecon.geometry import camera_pose_from_body, make_pose, rot_z
@@ -186,6 +187,8 @@ class Mission:
         if last or (every > 0 and self.state.frame % every == 0):
             q = self.evaluation.evaluate(self.mapper)
             row["eval_psnr"], row["eval_depth_l1_cm"] = q["psnr"], q["depth_l1_cm"]
+            if cfg.evaluation.snapshots and not last:  # mesh metrics need a TSDF: `eval` scores them later
+                save_map(self.mapper.map, self.run_dir / SNAPSHOTS / f"map_{self.state.frame:05d}.ply")
         if last:
             return row
         self._choose_and_fly(row)

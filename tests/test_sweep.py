@@ -1,8 +1,10 @@
 """A mini sweep (two methods, one small scene, one seed, a few frames) end to end: real flights,
 evaluation, every table and figure file; a second run skips the finished runs."""
 
+import csv
 import json
 
+import numpy as np
 import pytest
 
 from flightrecon.evaluation.report import collect, write_figures, write_tables
@@ -17,6 +19,12 @@ TABLES = [f"{t}.{ext}" for t in ("overall", "per_scene", "efficiency") for ext i
 FIGURES = ["quality_over_frames.png", "candidate_time_over_frames.png", "quality_vs_time.png", "novel_views.png"]
 
 
+
+def _rows(path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
 @pytest.mark.slow
 def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_path):
     specs = plan_runs("demo", ["room0"], ["gaussmi2d", "random"], 1, TINY, str(tmp_path))
@@ -28,8 +36,22 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
         ev = json.loads((s.run_dir / "eval.json").read_text())
         assert ev["lpips"] == "n/a" and 0 <= ev["fscore"] <= 1 and ev["model_mb"] > 0
         assert (s.run_dir / "mesh.ply").is_file()
+        # full metrics over collected frames, from the map snapshots saved at the in-flight
+        # evaluations: each snapshot scores what the loop measured at that frame
+        over = _rows(s.run_dir / "eval_over_frames.csv")
+        flown = _rows(s.run_dir / "frames.csv")
+        assert [int(r["frame"]) for r in over] == [0, 1]
+        for r in over:
+            at = flown[int(r["frame"])]
+            assert float(r["psnr"]) == pytest.approx(float(at["eval_psnr"]), abs=1e-3)
+            assert float(r["depth_l1_cm"]) == pytest.approx(float(at["eval_depth_l1_cm"]), abs=1e-2)
+            assert 0 <= float(r["fscore"]) <= 1
     report = tmp_path / "report"
     recs = collect([s.run_dir for s in specs])
+    for r in recs:  # accuracy series: the snapshots' at their frames, the final map's at the last
+        expected = [float(row["accuracy_cm"]) for row in _rows(r["dir"] / "eval_over_frames.csv")]
+        expected.append(r["accuracy_cm"])
+        np.testing.assert_array_equal(r["series"]["eval_accuracy_cm"], np.array(expected, dtype=float))
     files = write_tables(recs, report) + write_figures(recs, report)
     assert sorted(p.name for p in files) == sorted(TABLES + FIGURES)
     for name in FIGURES:

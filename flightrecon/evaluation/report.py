@@ -8,8 +8,8 @@ Per-candidate time = total scoring time / total feasible candidates scored, from
 
 Figures (PNG): quality over collected frames (PSNR and depth L1 of the evaluation views, which the
 loop records every `evaluation.every` frames; mean with min-max spread across seeds, averaged over
-scenes; mesh accuracy is computed on the final map only, since a TSDF + mesh evaluation per
-recorded frame would cost more than the flight), per-candidate time over frames, quality versus
+scenes; mesh accuracy from the map snapshots saved at those frames, scored after the flight by
+`evaluate_run`), per-candidate time over frames, quality versus
 per-candidate time labelled with model size, and novel-view grids (color, depth, normal) of the
 first scene's first seed annotated with PSNR, depth L1 and mean normal angle error.
 """
@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from flightrecon.evaluation.run_eval import OVER_FRAMES
 from flightrecon.fileio import atomic_path, write_text
 
 OVERALL = [("psnr", "PSNR", "up", 2), ("ssim", "SSIM", "up", 3), ("lpips", "LPIPS", "down", 3),
@@ -58,15 +59,31 @@ def collect(run_dirs: list[Path]) -> list[dict]:
         rows = _read_frames(d / "frames.csv")
         scored = [(_num(r["t_score"]), _num(r["n_feasible"])) for r in rows if _num(r.get("n_feasible")) > 1]
         n_cand = sum(n for _, n in scored)
+        series = {k: np.array([_num(r.get(k)) for r in rows]) for k in
+                  ("eval_psnr", "eval_depth_l1_cm", "t_score", "n_feasible")}
+        series["eval_accuracy_cm"] = _accuracy_series(d, len(rows), ev)
         recs.append({
             "dir": d, "scene": d.parent.parent.name, "method": met["method"], "seed": met["seed"], **ev,
             "ms_per_candidate": 1000 * sum(t for t, _ in scored) / n_cand if n_cand else math.nan,
             "ms_update": 1000 * met["mean_times_s"].get("t_select_update", math.nan),
             "s_per_frame": met["wall_time_s"] / max(1, met["frames"]), "frames": met["frames"],
-            "series": {k: np.array([_num(r.get(k)) for r in rows]) for k in
-                       ("eval_psnr", "eval_depth_l1_cm", "t_score", "n_feasible")},
+            "series": series,
         })
     return recs
+
+
+def _accuracy_series(run_dir: Path, n_frames: int, final: dict) -> np.ndarray:
+    """Mesh accuracy (cm) per frame: the in-flight snapshots' (eval_over_frames.csv), the final map's
+    at the last frame, NaN elsewhere."""
+    acc = np.full(n_frames, math.nan)
+    path = run_dir / OVER_FRAMES
+    if path.is_file():
+        for r in _read_frames(path):
+            if int(r["frame"]) < n_frames:
+                acc[int(r["frame"])] = _num(r["accuracy_cm"])
+    if n_frames:
+        acc[-1] = _num(final.get("accuracy_cm"))
+    return acc
 
 
 def _mean(vals) -> float:
@@ -155,8 +172,9 @@ def write_figures(recs: list[dict], out: Path) -> list[Path]:
     methods = _methods(recs)
     paths = []
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    for ax, (key, label) in zip(axes, (("eval_psnr", "PSNR [dB]"), ("eval_depth_l1_cm", "Depth L1 [cm]"))):
+    fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
+    for ax, (key, label) in zip(axes, (("eval_psnr", "PSNR [dB]"), ("eval_depth_l1_cm", "Depth L1 [cm]"),
+                                       ("eval_accuracy_cm", "Accuracy [cm]"))):
         for m in methods:
             f, mean, lo, hi = _curve([r for r in recs if r["method"] == m], key)
             ax.plot(f + 1, mean, marker="o", ms=3, label=m)

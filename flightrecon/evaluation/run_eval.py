@@ -3,7 +3,9 @@
 Reads the run's config.toml and map.ply, rebuilds the scene's fixed evaluation views (the same
 views the loop scored during the flight, flightrecon.evaluation.views), and writes
 `eval.json`, `mesh.ply` (the TSDF mesh of the map) and `novel_view.npz` (the first evaluation
-view's ground truth and renders, for the sweep's figures) into the run folder.
+view's ground truth and renders, for the sweep's figures) into the run folder, and
+`eval_over_frames.csv`: the same metrics for the map snapshots the flight saved at each in-flight
+evaluation (`evaluation.every`), so mesh accuracy can be plotted over collected frames.
 
 The mesh is fused from the map's rendered depth at the evaluation views (expected depth where the
 rendered opacity exceeds 0.5), the same views that define the visible part of the ground truth
@@ -32,6 +34,10 @@ from flightrecon.mapping.losses import normals_from_depth
 from flightrecon.mapping.ply import load_map
 from flightrecon.mapping.store import GaussianMap
 from flightrecon.render import render
+
+SNAPSHOTS = "snapshots"  # map_<frame>.ply saved by the flight at each in-flight evaluation
+OVER_FRAMES = "eval_over_frames.csv"
+OVER_FRAMES_KEYS = ("psnr", "depth_l1_cm", "accuracy_cm", "completion_cm", "chamfer_cm", "fscore")
 
 SURFACE_ALPHA = 0.5  # rendered opacity above which a pixel's depth enters the TSDF
 
@@ -153,5 +159,18 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | None = None) -> dict:
     with atomic_path(run_dir / "novel_view.npz") as tmp:
         with open(tmp, "wb") as f:
             np.savez_compressed(f, **first)
+    _write_over_frames(run_dir, cfg, ev, gt_mesh, lpips)
     write_json(run_dir / "eval.json", metrics)
     return metrics
+
+
+def _write_over_frames(run_dir: Path, cfg: ScenarioConfig, ev: EvaluationSet, gt_mesh: trimesh.Trimesh,
+                       lpips: LpipsMetric) -> None:
+    """Full metrics of the flight's map snapshots (mesh accuracy over collected frames for the report)."""
+    snaps = sorted((run_dir / SNAPSHOTS).glob("map_*.ply"))
+    rows = [",".join(("frame",) + OVER_FRAMES_KEYS)]
+    for snap in snaps:
+        m, _, _ = evaluate_map(load_map(snap), cfg, ev, gt_mesh, lpips)
+        rows.append(",".join([snap.stem.split("_")[1]] + [f"{m[k]:.6g}" for k in OVER_FRAMES_KEYS]))
+    with atomic_path(run_dir / OVER_FRAMES) as tmp:
+        Path(tmp).write_text("\n".join(rows) + "\n")

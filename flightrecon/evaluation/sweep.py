@@ -35,7 +35,7 @@ class RunSpec:
     def config(self):
         return load_config(self.scenario, list(self.overrides) + [
             f"scene.name={self.scene}", f"selector.method={self.method}", f"seed={self.seed}",
-            "output.record=false"])
+            "output.record=false", "evaluation.snapshots=true"])
 
 
 def plan_runs(scenario: str, scenes: list[str], methods: list[str], seeds: int, overrides: list[str],
