@@ -27,7 +27,7 @@ from flightrecon.evaluation.lpips_metric import LpipsMetric
 from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface, visible_mask
 from flightrecon.evaluation.tsdf import fuse_depth_maps
 from flightrecon.evaluation.views import EvaluationSet
-from flightrecon.fileio import atomic_path, write_json
+from flightrecon.fileio import atomic_path, write_json, write_text
 from flightrecon.geometry import pixel_rays
 from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim
 from flightrecon.mapping.losses import normals_from_depth
@@ -172,5 +172,4 @@ def _write_over_frames(run_dir: Path, cfg: ScenarioConfig, ev: EvaluationSet, gt
     for snap in snaps:
         m, _, _ = evaluate_map(load_map(snap), cfg, ev, gt_mesh, lpips)
         rows.append(",".join([snap.stem.split("_")[1]] + [f"{m[k]:.6g}" for k in OVER_FRAMES_KEYS]))
-    with atomic_path(run_dir / OVER_FRAMES) as tmp:
-        Path(tmp).write_text("\n".join(rows) + "\n")
+    write_text(run_dir / OVER_FRAMES, "\n".join(rows) + "\n")

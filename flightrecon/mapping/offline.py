@@ -105,9 +105,13 @@ def masked_metrics(color: np.ndarray, depth: np.ndarray, rgb: np.ndarray, observ
     """PSNR and depth L1 (m) of renders against observations over the pixels in `mask` only."""
     if not mask.any():
         return {"psnr": float("nan"), "depth_l1": float("nan")}
-    mse = float(np.mean(np.square(color[mask] - np.asarray(rgb, np.float64)[mask])))
-    return {"psnr": 10.0 * np.log10(1.0 / max(mse, 1e-20)),
-            "depth_l1": float(np.mean(np.abs(depth[mask] - np.asarray(observed, np.float64)[mask])))}
+
+    def pixels(x: np.ndarray) -> torch.Tensor:  # the masked pixels as a one-row image [1, P, C]
+        x = np.asarray(x, np.float64)[mask]
+        return torch.from_numpy(x.reshape(1, len(x), -1))
+
+    return {"psnr": float(psnr(pixels(color), pixels(rgb))),
+            "depth_l1": float(depth_l1(pixels(depth), pixels(observed)))}
 
 
 def mean_metrics(rows: list[dict]) -> dict:
