@@ -46,14 +46,18 @@ constexpr double RHO_MARGIN = 1e-3;  // alpha margin exp(-5e-4): covers float er
 constexpr int NG = 11;           // per-pixel geometric gradient: T_u, T_v, T_w (9), means2d (2)
 constexpr int NSYM = NG * (NG + 1) / 2;
 
-// One camera's projected splats (struct of arrays over all N splats).
+// One camera's projected splats (struct of arrays over all N splats, by SplatGroups position).
+// Only the splats of the groups that pass the camera's frustum test are written (project_camera);
+// every other rect is kept empty.
 template <typename S>
 struct Projected {
   std::vector<S> M, m2d, depth, nrm, sign;
   std::vector<int> rect;  // px0, py0, px1, py1 (inclusive); px0 > px1 when not binned
   std::vector<int> radii;
   explicit Projected(int64_t n)
-      : M(9 * n), m2d(2 * n), depth(n), nrm(3 * n), sign(n), rect(4 * n), radii(n) {}
+      : M(9 * n), m2d(2 * n), depth(n), nrm(3 * n), sign(n), rect(4 * n, 0), radii(n) {
+    for (int64_t i = 0; i < n; ++i) rect[4 * i] = 1;
+  }
 };
 
 #if FR_AVX2
@@ -128,122 +132,6 @@ void conic_box(const S* Tu, const S* Tv, const S* Tw, S cs, S& cx, S& cy, S& ex,
   ey = std::sqrt(std::max(cy * cy - sy, S(1e-4)));
 }
 
-// Per-splat values that do not depend on the camera, computed once per call instead of once per
-// camera: the bounding-sphere radius of the frustum test and the opacity-aware cutoff (rho_max,
-// <= 0 when the splat can never reach ALPHA_MIN) with its conic scale and filter reach.
-template <typename S>
-struct SplatConsts {
-  std::vector<S> rad, cut, freach;
-  std::vector<double> rho_max;
-};
-
-template <typename S>
-SplatConsts<S> splat_consts(const S* U, const S* V, const S* opac, int64_t N) {
-  SplatConsts<S> c;
-  c.rad.resize(N);
-  c.cut.resize(N);
-  c.freach.resize(N);
-  c.rho_max.resize(N);
-#pragma omp parallel for schedule(static)
-  for (int64_t i = 0; i < N; ++i) {
-    const S* u = U + 3 * i;
-    const S* v = V + 3 * i;
-    c.rad[i] = S(CUTOFF * 1.01) * std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    // alpha = o exp(-rho / 2) reaches ALPHA_MIN only where rho <= 2 ln(o / ALPHA_MIN) (plus a
-    // margin for float error); never more than the fixed CUTOFF, which is the o = 1 case
-    const double rho_max = std::min(2.0 * std::log(double(opac[i]) / ALPHA_MIN) + RHO_MARGIN, CUTOFF * CUTOFF);
-    c.rho_max[i] = rho_max;
-    c.cut[i] = rho_max > 0 ? S(std::sqrt(rho_max)) : S(0);
-    c.freach[i] = rho_max > 0 ? S(std::min(FILTER_REACH, std::sqrt(rho_max / FILTER_INV_SQ))) : S(0);
-  }
-  return c;
-}
-
-template <typename S>
-void project_camera(const S* means, const S* U, const S* V, const S* n, const SplatConsts<S>& sc, int64_t N,
-                    const Camera& cam, const Settings& st, Projected<S>& P) {
-  // Frustum planes through the camera center, widened by the low-pass filter's reach in pixels
-  // (plus a margin): a splat whose bounding sphere (radius CUTOFF |(U, V)|, which holds the cutoff
-  // ellipse and the projected center) lies wholly outside one of them cannot touch the image, so
-  // it is rejected before the costly part of the projection. Only for plain pinhole K.
-  const double* K = cam.K;
-  const bool pinhole = K[1] == 0 && K[3] == 0 && K[6] == 0 && K[7] == 0 && K[8] == 1 && K[0] > 0 && K[4] > 0;
-  const double m = FILTER_REACH + 1.0;
-  double planes[4][2];  // (a, b): a * x_or_y + b * z >= 0 inside; index 0, 1 act on x, 2, 3 on y
-  const double ab[4][2] = {{K[0], K[2] + m}, {-K[0], st.W + m - K[2]}, {K[4], K[5] + m}, {-K[4], st.H + m - K[5]}};
-  for (int k = 0; k < 4; ++k) {
-    const double len = std::sqrt(ab[k][0] * ab[k][0] + ab[k][1] * ab[k][1]);
-    planes[k][0] = ab[k][0] / len;
-    planes[k][1] = ab[k][1] / len;
-  }
-#pragma omp parallel for schedule(static)
-  for (int64_t i = 0; i < N; ++i) {
-    S pc[3], uc[3], vc[3], nc[3];
-    for (int r = 0; r < 3; ++r) {
-      const double* Rr = cam.R + 3 * r;
-      pc[r] = S(Rr[0]) * means[3 * i] + S(Rr[1]) * means[3 * i + 1] + S(Rr[2]) * means[3 * i + 2] + S(cam.t[r]);
-    }
-    if (pinhole) {
-      const S rad = sc.rad[i];
-      bool out = !(pc[2] > S(st.near));
-      for (int k = 0; k < 4; ++k)
-        out = out || S(planes[k][0]) * pc[k / 2] + S(planes[k][1]) * pc[2] < -rad;
-      if (out) {
-        P.rect[4 * i] = 1; P.rect[4 * i + 2] = 0;
-        P.radii[i] = 0;
-        continue;
-      }
-    }
-    for (int r = 0; r < 3; ++r) {
-      const double* Rr = cam.R + 3 * r;
-      uc[r] = S(Rr[0]) * U[3 * i] + S(Rr[1]) * U[3 * i + 1] + S(Rr[2]) * U[3 * i + 2];
-      vc[r] = S(Rr[0]) * V[3 * i] + S(Rr[1]) * V[3 * i + 1] + S(Rr[2]) * V[3 * i + 2];
-      nc[r] = S(Rr[0]) * n[3 * i] + S(Rr[1]) * n[3 * i + 1] + S(Rr[2]) * n[3 * i + 2];
-    }
-    const S sgn = (nc[0] * pc[0] + nc[1] * pc[1] + nc[2] * pc[2]) < 0 ? S(1) : S(-1);
-    P.sign[i] = sgn;
-    for (int r = 0; r < 3; ++r) P.nrm[3 * i + r] = sgn * nc[r];
-    S* M = &P.M[9 * i];
-    for (int r = 0; r < 3; ++r) {
-      const double* Kr = cam.K + 3 * r;
-      M[3 * r + 0] = S(Kr[0]) * uc[0] + S(Kr[1]) * uc[1] + S(Kr[2]) * uc[2];
-      M[3 * r + 1] = S(Kr[0]) * vc[0] + S(Kr[1]) * vc[1] + S(Kr[2]) * vc[2];
-      M[3 * r + 2] = S(Kr[0]) * pc[0] + S(Kr[1]) * pc[1] + S(Kr[2]) * pc[2];
-    }
-    const S z = pc[2];
-    P.depth[i] = z;
-    int* rect = &P.rect[4 * i];
-    rect[0] = 1; rect[2] = 0;
-    P.radii[i] = 0;
-    const S reach = S(CUTOFF) * std::sqrt(uc[2] * uc[2] + vc[2] * vc[2]);
-    if (!(z > S(st.near) && z < S(st.far) && z - reach > 0)) continue;
-    S cx, cy, ex, ey, d;
-    conic_box(M, M + 3, M + 6, S(1), cx, cy, ex, ey, d);
-    P.m2d[2 * i] = cx;
-    P.m2d[2 * i + 1] = cy;
-    S bx, by, bex, bey, bd;
-    conic_box(M, M + 3, M + 6, S(CUTOFF), bx, by, bex, bey, bd);
-    S lox = std::min(bx - bex, cx - S(FILTER_REACH)), hix = std::max(bx + bex, cx + S(FILTER_REACH));
-    S loy = std::min(by - bey, cy - S(FILTER_REACH)), hiy = std::max(by + bey, cy + S(FILTER_REACH));
-    if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) continue;
-    P.radii[i] = int(std::ceil(S(CUTOFF) * std::max(ex, ey)));  // geometric: independent of opacity
-    // Opacity-aware extent (SplatConsts): the binned box (and with it the tiles and the blend's rows
-    // and column groups) shrinks with the opacity; never wider than the fixed CUTOFF / FILTER_REACH
-    // box above, which is the o = 1 case.
-    if (!(sc.rho_max[i] > 0)) continue;
-    const S cut = sc.cut[i], freach = sc.freach[i];
-    conic_box(M, M + 3, M + 6, cut, bx, by, bex, bey, bd);
-    lox = std::min(bx - bex, cx - freach), hix = std::max(bx + bex, cx + freach);
-    loy = std::min(by - bey, cy - freach), hiy = std::max(by + bey, cy + freach);
-    if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) continue;
-    // Pixel i is covered when lo <= i + 0.5 <= hi; clamp in double before converting to int.
-    rect[0] = int(std::max(0.0, std::ceil(double(lox) - 0.5 - BOX_EPS)));
-    rect[1] = int(std::max(0.0, std::ceil(double(loy) - 0.5 - BOX_EPS)));
-    rect[2] = int(std::min(double(st.W - 1), std::floor(double(hix) - 0.5 + BOX_EPS)));
-    rect[3] = int(std::min(double(st.H - 1), std::floor(double(hiy) - 0.5 + BOX_EPS)));
-  }
-}
-
 // Stable LSD radix sort of ids by 32-bit keys (8 bits a pass; passes whose byte is the same for
 // every key are skipped): ids that enter in increasing order keep it among equal keys.
 inline void radix_sort(std::vector<uint32_t>& key, std::vector<int32_t>& id) {
@@ -265,49 +153,323 @@ inline void radix_sort(std::vector<uint32_t>& key, std::vector<int32_t>& id) {
   }
 }
 
+// Splats regrouped for frustum culling, once per call (nothing here depends on the camera): sorted
+// along a Morton curve of their means, so each run of GROUP consecutive positions is spatially
+// compact, and each run (group) gets a sphere holding its splats' bounding spheres. A camera then
+// projects only the splats of the groups whose sphere may reach its frustum, instead of all N.
+// The per-splat values that do not depend on the camera live here too, in the same order: the
+// bounding-sphere radius of the frustum test and the opacity-aware cutoff (rho_max, <= 0 when the
+// splat can never reach ALPHA_MIN) with its conic scale and filter reach.
+constexpr int GROUP = 32;  // splats per culling group
+constexpr int MORTON_BITS = 10;  // per axis
+
 template <typename S>
-Bins<S> bin_and_sort(const Projected<S>& P, int64_t N, const S* opac, const S* feat, int D,
+struct SplatGroups {
+  int64_t N = 0;
+  std::vector<int32_t> id;          // position -> splat id
+  std::vector<S> mean, U, V, n;     // 3 per position
+  std::vector<S> opac, rad, cut, freach;
+  std::vector<double> rho_max;
+  std::vector<double> sphere;       // per group: center (3), radius
+  int groups() const { return int((N + GROUP - 1) / GROUP); }
+  int64_t begin(int g) const { return int64_t(g) * GROUP; }
+  int64_t end(int g) const { return std::min(N, int64_t(g + 1) * GROUP); }
+};
+
+// The low MORTON_BITS bits of v spread to every third bit.
+inline uint32_t spread_bits(uint32_t v) {
+  v &= 0x3ffu;
+  v = (v | (v << 16)) & 0x030000ffu;
+  v = (v | (v << 8)) & 0x0300f00fu;
+  v = (v | (v << 4)) & 0x030c30c3u;
+  v = (v | (v << 2)) & 0x09249249u;
+  return v;
+}
+
+// Splat ids in Morton order of their means quantized in the means' bounding box.
+template <typename S>
+std::vector<int32_t> morton_order(const S* means, int64_t N) {
+  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+  for (int64_t i = 0; i < N; ++i)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], double(means[3 * i + a]));
+      hi[a] = std::max(hi[a], double(means[3 * i + a]));
+    }
+  constexpr double top = (1 << MORTON_BITS) - 1;
+  double scale[3];
+  for (int a = 0; a < 3; ++a) scale[a] = hi[a] > lo[a] ? top / (hi[a] - lo[a]) : 0.0;
+  std::vector<uint32_t> key(N);
+  std::vector<int32_t> id(N);
+  for (int64_t i = 0; i < N; ++i) {
+    uint32_t code = 0;
+    for (int a = 0; a < 3; ++a) {
+      const double q = (double(means[3 * i + a]) - lo[a]) * scale[a];
+      code |= spread_bits(q > 0 ? uint32_t(std::min(q, top)) : 0u) << a;
+    }
+    key[i] = code;
+    id[i] = int32_t(i);
+  }
+  radix_sort(key, id);
+  return id;
+}
+
+// spatial: groups in Morton order (culling pays); else in id order, so that position == id.
+template <typename S>
+SplatGroups<S> group_splats(const S* means, const S* U, const S* V, const S* n, const S* opac, int64_t N,
+                            bool spatial) {
+  SplatGroups<S> g;
+  g.N = N;
+  if (spatial) {
+    g.id = morton_order(means, N);
+  } else {
+    g.id.resize(N);
+    for (int64_t i = 0; i < N; ++i) g.id[i] = int32_t(i);
+  }
+  g.mean.resize(3 * N); g.U.resize(3 * N); g.V.resize(3 * N); g.n.resize(3 * N);
+  g.opac.resize(N); g.rad.resize(N); g.cut.resize(N); g.freach.resize(N); g.rho_max.resize(N);
+#pragma omp parallel for schedule(static)
+  for (int64_t s = 0; s < N; ++s) {
+    const int64_t i = g.id[s];
+    for (int a = 0; a < 3; ++a) {
+      g.mean[3 * s + a] = means[3 * i + a];
+      g.U[3 * s + a] = U[3 * i + a];
+      g.V[3 * s + a] = V[3 * i + a];
+      g.n[3 * s + a] = n[3 * i + a];
+    }
+    g.opac[s] = opac[i];
+    const S* u = U + 3 * i;
+    const S* v = V + 3 * i;
+    g.rad[s] = S(CUTOFF * 1.01) * std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    // alpha = o exp(-rho / 2) reaches ALPHA_MIN only where rho <= 2 ln(o / ALPHA_MIN) (plus a
+    // margin for float error); never more than the fixed CUTOFF, which is the o = 1 case
+    const double rho_max = std::min(2.0 * std::log(double(opac[i]) / ALPHA_MIN) + RHO_MARGIN, CUTOFF * CUTOFF);
+    g.rho_max[s] = rho_max;
+    g.cut[s] = rho_max > 0 ? S(std::sqrt(rho_max)) : S(0);
+    g.freach[s] = rho_max > 0 ? S(std::min(FILTER_REACH, std::sqrt(rho_max / FILTER_INV_SQ))) : S(0);
+  }
+  const int G = g.groups();
+  g.sphere.resize(4 * size_t(G));
+#pragma omp parallel for schedule(static)
+  for (int k = 0; k < G; ++k) {
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int64_t s = g.begin(k); s < g.end(k); ++s)
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = std::min(lo[a], double(g.mean[3 * s + a]));
+        hi[a] = std::max(hi[a], double(g.mean[3 * s + a]));
+      }
+    double* sph = &g.sphere[4 * size_t(k)];
+    for (int a = 0; a < 3; ++a) sph[a] = 0.5 * (lo[a] + hi[a]);
+    double r = 0;
+    for (int64_t s = g.begin(k); s < g.end(k); ++s) {
+      const double* c = sph;
+      const S* p = &g.mean[3 * s];
+      const double dx = p[0] - c[0], dy = p[1] - c[1], dz = p[2] - c[2];
+      r = std::max(r, std::sqrt(dx * dx + dy * dy + dz * dz) + double(g.rad[s]));
+    }
+    sph[3] = r;
+  }
+  return g;
+}
+
+// Frustum planes through the camera center, widened by the low-pass filter's reach in pixels
+// (plus a margin): a splat whose bounding sphere (radius CUTOFF |(U, V)|, which holds the cutoff
+// ellipse and the projected center) lies wholly outside one of them cannot touch the image, so
+// it is rejected before the costly part of the projection. Only for plain pinhole K.
+struct Frustum {
+  bool pinhole;
+  double planes[4][2];  // (a, b): a * x_or_y + b * z >= 0 inside; index 0, 1 act on x, 2, 3 on y
+};
+
+inline Frustum frustum_of(const Camera& cam, const Settings& st) {
+  const double* K = cam.K;
+  Frustum fr;
+  fr.pinhole = K[1] == 0 && K[3] == 0 && K[6] == 0 && K[7] == 0 && K[8] == 1 && K[0] > 0 && K[4] > 0;
+  const double m = FILTER_REACH + 1.0;
+  const double ab[4][2] = {{K[0], K[2] + m}, {-K[0], st.W + m - K[2]}, {K[4], K[5] + m}, {-K[4], st.H + m - K[5]}};
+  for (int k = 0; k < 4; ++k) {
+    const double len = std::sqrt(ab[k][0] * ab[k][0] + ab[k][1] * ab[k][1]);
+    fr.planes[k][0] = ab[k][0] / len;
+    fr.planes[k][1] = ab[k][1] / len;
+  }
+  return fr;
+}
+
+// Whether every splat of a group fails the per-splat frustum test of project_splat: the group's
+// sphere lies outside a plane (or behind the near plane) by more than a margin that covers the
+// float rounding of that test, so culling a group never drops a splat the test would keep.
+inline bool group_outside(const double* sph, const Camera& cam, const Frustum& fr, double near) {
+  double c[3];
+  for (int r = 0; r < 3; ++r)
+    c[r] = cam.R[3 * r] * sph[0] + cam.R[3 * r + 1] * sph[1] + cam.R[3 * r + 2] * sph[2] + cam.t[r];
+  const double scale = 1.0 + std::fabs(c[0]) + std::fabs(c[1]) + std::fabs(c[2]) + sph[3] +
+                       std::fabs(cam.t[0]) + std::fabs(cam.t[1]) + std::fabs(cam.t[2]);
+  const double r = sph[3] + 1e-4 * scale;
+  if (c[2] + r <= near) return true;
+  for (int k = 0; k < 4; ++k)
+    if (fr.planes[k][0] * c[k / 2] + fr.planes[k][1] * c[2] < -r) return true;
+  return false;
+}
+
+// Projects the splat at position s into P (same position); its rect stays empty (px0 > px1) when
+// it cannot touch the image.
+template <typename S>
+void project_splat(const SplatGroups<S>& G, int64_t s, const Camera& cam, const Frustum& fr,
+                   const Settings& st, Projected<S>& P) {
+  const S* mean = &G.mean[3 * s];
+  S pc[3], uc[3], vc[3], nc[3];
+  for (int r = 0; r < 3; ++r) {
+    const double* Rr = cam.R + 3 * r;
+    pc[r] = S(Rr[0]) * mean[0] + S(Rr[1]) * mean[1] + S(Rr[2]) * mean[2] + S(cam.t[r]);
+  }
+  int* rect = &P.rect[4 * s];
+  rect[0] = 1; rect[2] = 0;
+  P.radii[s] = 0;
+  if (fr.pinhole) {
+    const S rad = G.rad[s];
+    bool out = !(pc[2] > S(st.near));
+    for (int k = 0; k < 4; ++k)
+      out = out || S(fr.planes[k][0]) * pc[k / 2] + S(fr.planes[k][1]) * pc[2] < -rad;
+    if (out) return;
+  }
+  const S *U = &G.U[3 * s], *V = &G.V[3 * s], *n = &G.n[3 * s];
+  for (int r = 0; r < 3; ++r) {
+    const double* Rr = cam.R + 3 * r;
+    uc[r] = S(Rr[0]) * U[0] + S(Rr[1]) * U[1] + S(Rr[2]) * U[2];
+    vc[r] = S(Rr[0]) * V[0] + S(Rr[1]) * V[1] + S(Rr[2]) * V[2];
+    nc[r] = S(Rr[0]) * n[0] + S(Rr[1]) * n[1] + S(Rr[2]) * n[2];
+  }
+  const S sgn = (nc[0] * pc[0] + nc[1] * pc[1] + nc[2] * pc[2]) < 0 ? S(1) : S(-1);
+  P.sign[s] = sgn;
+  for (int r = 0; r < 3; ++r) P.nrm[3 * s + r] = sgn * nc[r];
+  S* M = &P.M[9 * s];
+  for (int r = 0; r < 3; ++r) {
+    const double* Kr = cam.K + 3 * r;
+    M[3 * r + 0] = S(Kr[0]) * uc[0] + S(Kr[1]) * uc[1] + S(Kr[2]) * uc[2];
+    M[3 * r + 1] = S(Kr[0]) * vc[0] + S(Kr[1]) * vc[1] + S(Kr[2]) * vc[2];
+    M[3 * r + 2] = S(Kr[0]) * pc[0] + S(Kr[1]) * pc[1] + S(Kr[2]) * pc[2];
+  }
+  const S z = pc[2];
+  P.depth[s] = z;
+  const S reach = S(CUTOFF) * std::sqrt(uc[2] * uc[2] + vc[2] * vc[2]);
+  if (!(z > S(st.near) && z < S(st.far) && z - reach > 0)) return;
+  S cx, cy, ex, ey, d;
+  conic_box(M, M + 3, M + 6, S(1), cx, cy, ex, ey, d);
+  P.m2d[2 * s] = cx;
+  P.m2d[2 * s + 1] = cy;
+  S bx, by, bex, bey, bd;
+  conic_box(M, M + 3, M + 6, S(CUTOFF), bx, by, bex, bey, bd);
+  S lox = std::min(bx - bex, cx - S(FILTER_REACH)), hix = std::max(bx + bex, cx + S(FILTER_REACH));
+  S loy = std::min(by - bey, cy - S(FILTER_REACH)), hiy = std::max(by + bey, cy + S(FILTER_REACH));
+  if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) return;
+  P.radii[s] = int(std::ceil(S(CUTOFF) * std::max(ex, ey)));  // geometric: independent of opacity
+  // Opacity-aware extent (SplatGroups): the binned box (and with it the tiles and the blend's rows
+  // and column groups) shrinks with the opacity; never wider than the fixed CUTOFF / FILTER_REACH
+  // box above, which is the o = 1 case.
+  if (!(G.rho_max[s] > 0)) return;
+  const S cut = G.cut[s], freach = G.freach[s];
+  conic_box(M, M + 3, M + 6, cut, bx, by, bex, bey, bd);
+  lox = std::min(bx - bex, cx - freach), hix = std::max(bx + bex, cx + freach);
+  loy = std::min(by - bey, cy - freach), hiy = std::max(by + bey, cy + freach);
+  if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) return;
+  // Pixel i is covered when lo <= i + 0.5 <= hi; clamp in double before converting to int.
+  rect[0] = int(std::max(0.0, std::ceil(double(lox) - 0.5 - BOX_EPS)));
+  rect[1] = int(std::max(0.0, std::ceil(double(loy) - 0.5 - BOX_EPS)));
+  rect[2] = int(std::min(double(st.W - 1), std::floor(double(hix) - 0.5 + BOX_EPS)));
+  rect[3] = int(std::min(double(st.H - 1), std::floor(double(hiy) - 0.5 + BOX_EPS)));
+}
+
+// What one camera may see: the groups that pass the frustum test (their splats are projected, the
+// others keep radius 0) and, of their splats, the positions that touch the image, increasing.
+struct Visible {
+  std::vector<int32_t> groups;
+  std::vector<int32_t> binned;
+};
+
+template <typename S>
+void project_camera(const SplatGroups<S>& G, const Camera& cam, const Settings& st, Projected<S>& P,
+                    Visible& vis) {
+  const Frustum fr = frustum_of(cam, st);
+  for (const int k : vis.groups)  // the previous camera's splats: only they can have a rect
+    for (int64_t s = G.begin(k); s < G.end(k); ++s) P.rect[4 * s] = 1, P.rect[4 * s + 2] = 0;
+  vis.groups.clear();
+  for (int k = 0; k < G.groups(); ++k)
+    if (!(fr.pinhole && group_outside(&G.sphere[4 * size_t(k)], cam, fr, st.near))) vis.groups.push_back(k);
+  const int ng = int(vis.groups.size());
+#pragma omp parallel for schedule(static)
+  for (int e = 0; e < ng; ++e)
+    for (int64_t s = G.begin(vis.groups[e]); s < G.end(vis.groups[e]); ++s) project_splat(G, s, cam, fr, st, P);
+  vis.binned.resize(size_t(ng) * GROUP);
+  int64_t V = 0;
+  for (const int k : vis.groups)
+    for (int64_t s = G.begin(k); s < G.end(k); ++s) {  // branch-free: visibility is random
+      const int* r = &P.rect[4 * s];
+      vis.binned[V] = int32_t(s);
+      V += (r[0] <= r[2]) & (r[1] <= r[3]);
+    }
+  vis.binned.resize(V);
+}
+
+// One camera's radii by splat id (0 where not visible).
+template <typename S>
+void write_radii(const SplatGroups<S>& G, const Visible& vis, const Projected<S>& P, int32_t* radii) {
+  std::fill(radii, radii + G.N, 0);
+  for (const int k : vis.groups)
+    for (int64_t s = G.begin(k); s < G.end(k); ++s) radii[G.id[s]] = P.radii[s];
+}
+
+// The stable radix sort keeps equal keys in record (position) order, but the depth order breaks
+// ties by the lower splat id: runs of equal keys are put in id order.
+inline void ties_by_id(const std::vector<uint32_t>& key, std::vector<int32_t>& order, const std::vector<int32_t>& splat) {
+  const size_t n = key.size();
+  for (size_t a = 0, b; a < n; a = b) {
+    for (b = a + 1; b < n && key[b] == key[a]; ++b) {}
+    if (b - a > 1)
+      std::sort(order.begin() + a, order.begin() + b, [&splat](int32_t x, int32_t y) { return splat[x] < splat[y]; });
+  }
+}
+
+template <typename S>
+Bins<S> bin_and_sort(const Projected<S>& P, const SplatGroups<S>& G, const Visible& vis, const S* feat, int D,
                      const Settings& st, Stats& stats) {
   const int tiles = st.tiles_x * st.tiles_y;
   const double t0 = omp_get_wtime();
   Bins<S> b;
-  // Records of the splats that touch the image, packed in id order (sequential reads).
-  b.splat.resize(N);
-  int64_t V = 0;
-  for (int64_t i = 0; i < N; ++i) {  // branch-free: visibility is random in id order
-    const int* r = &P.rect[4 * i];
-    b.splat[V] = int32_t(i);
-    V += (r[0] <= r[2]) & (r[1] <= r[3]);
-  }
+  // Records of the splats that touch the image, packed in position order (sequential reads).
+  const int64_t V = int64_t(vis.binned.size());
   b.splat.resize(V);
   b.R = REC + D;
   b.rect.resize(4 * size_t(V));
   b.rec.resize(size_t(V) * b.R);
 #pragma omp parallel for schedule(static)
   for (int64_t k = 0; k < V; ++k) {
-    const size_t i = size_t(b.splat[k]);
+    const size_t s = size_t(vis.binned[k]);
+    const int64_t i = G.id[s];
+    b.splat[k] = int32_t(i);
     S* q = &b.rec[size_t(k) * b.R];
-    for (int c = 0; c < 9; ++c) q[c] = P.M[9 * i + c];
-    q[9] = P.m2d[2 * i];
-    q[10] = P.m2d[2 * i + 1];
-    q[11] = opac[i];
-    for (int c = 0; c < 3; ++c) q[12 + c] = P.nrm[3 * i + c];
-    for (int d = 0; d < D; ++d) q[REC + d] = feat[int64_t(i) * D + d];
-    for (int c = 0; c < 4; ++c) b.rect[4 * k + c] = P.rect[4 * i + c];
+    for (int c = 0; c < 9; ++c) q[c] = P.M[9 * s + c];
+    q[9] = P.m2d[2 * s];
+    q[10] = P.m2d[2 * s + 1];
+    q[11] = G.opac[s];
+    for (int c = 0; c < 3; ++c) q[12 + c] = P.nrm[3 * s + c];
+    for (int d = 0; d < D; ++d) q[REC + d] = feat[i * D + d];
+    for (int c = 0; c < 4; ++c) b.rect[4 * k + c] = P.rect[4 * s + c];
   }
   const double t1 = omp_get_wtime();
-  // Depth order with ties by id: a binned splat has depth > near > 0, whose float bits order like
-  // the values, so a stable integer sort of the id-ordered records gives it.
+  // Depth order with ties by splat id: a binned splat has depth > near > 0, whose float bits order
+  // like the values, so an integer sort of the records gives it.
   std::vector<int32_t> order(V);
   for (int64_t k = 0; k < V; ++k) order[k] = int32_t(k);
   if constexpr (std::is_same<S, float>::value) {
     std::vector<uint32_t> key(V);
-    for (int64_t k = 0; k < V; ++k) std::memcpy(&key[k], &P.depth[b.splat[k]], sizeof(uint32_t));
+    for (int64_t k = 0; k < V; ++k) std::memcpy(&key[k], &P.depth[vis.binned[k]], sizeof(uint32_t));
     radix_sort(key, order);
+    ties_by_id(key, order, b.splat);
   } else {  // double depths do not fit the key
     const S* depth = P.depth.data();
-    const int32_t* id = b.splat.data();
-    std::stable_sort(order.begin(), order.end(), [depth, id](int32_t a, int32_t c) { return depth[id[a]] < depth[id[c]]; });
+    const int32_t *pos = vis.binned.data(), *id = b.splat.data();
+    std::sort(order.begin(), order.end(), [depth, pos, id](int32_t a, int32_t c) {
+      return depth[pos[a]] < depth[pos[c]] || (depth[pos[a]] == depth[pos[c]] && id[a] < id[c]);
+    });
   }
   const double t2 = omp_get_wtime();
   // Tiles list their records in depth order.
@@ -700,18 +862,18 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
   std::vector<Stats> per(C);
   const S *pm = means.data_ptr<S>(), *pu = U.data_ptr<S>(), *pv = V.data_ptr<S>(), *pn = n.data_ptr<S>();
   const double tc = omp_get_wtime();
-  const SplatConsts<S> consts = splat_consts(pu, pv, opac.data_ptr<S>(), N);
-  const double consts_s = omp_get_wtime() - tc;
+  const SplatGroups<S> groups = group_splats(pm, pu, pv, pn, opac.data_ptr<S>(), N, true);
+  const double groups_s = omp_get_wtime() - tc;
   // One camera: project, bin, sort, blend. Its inner parallel loops run serially when called from
   // the camera-parallel region below (nested parallelism is off), in parallel otherwise.
-  auto one = [&](int64_t c, Projected<S>& P) {
+  auto one = [&](int64_t c, Projected<S>& P, Visible& vis) {
     Stats& sc = per[c];
     double t0 = omp_get_wtime();
-    project_camera<S>(pm, pu, pv, pn, consts, N, cams[c], st, P);
+    project_camera<S>(groups, cams[c], st, P, vis);
+    write_radii(groups, vis, P, radii.data_ptr<int32_t>() + c * N);
     sc.project += omp_get_wtime() - t0;
-    std::copy(P.radii.begin(), P.radii.end(), radii.data_ptr<int32_t>() + c * N);
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
-    const Bins<S> B = bin_and_sort(P, N, opac.data_ptr<S>(), f, int(D), st, sc);
+    const Bins<S> B = bin_and_sort(P, groups, vis, f, int(D), st, sc);
     const int64_t HW = H * W;
     FwdOut<S> out{feat_img.data_ptr<S>() + c * HW * D, alpha.data_ptr<S>() + c * HW,
                   fl.normal ? normal.data_ptr<S>() + c * HW * 3 : nullptr,
@@ -739,17 +901,19 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
 #pragma omp parallel
     {
       Projected<S> P(N);
+      Visible vis;
 #pragma omp for schedule(dynamic, 1)
-      for (int64_t c = 0; c < C; ++c) one(c, P);
+      for (int64_t c = 0; c < C; ++c) one(c, P, vis);
     }
   } else {
     Projected<S> P(N);
-    for (int64_t c = 0; c < C; ++c) one(c, P);
+    Visible vis;
+    for (int64_t c = 0; c < C; ++c) one(c, P, vis);
   }
   g_stats = Stats();
   g_stats.by_camera = by_camera;
   for (const Stats& sc : per) g_stats.add(sc);
-  g_stats.project += consts_s;
+  g_stats.project += groups_s;
   return {feat_img, alpha, normal, zsum, msum, m2sum, median, last, medj, radii};
 }
 
@@ -1144,16 +1308,19 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
   Projected<S> P(N);
   g_stats = Stats();
   const double tc = omp_get_wtime();
-  const SplatConsts<S> consts = splat_consts(U.data_ptr<S>(), V.data_ptr<S>(), opac.data_ptr<S>(), N);
+  // Groups in id order: the chain rule below runs over splat ids. (The backward serves the
+  // mapper, whose few cameras each see much of the map, so Morton-ordered culling buys little.)
+  const SplatGroups<S> groups = group_splats(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(),
+                                             n.data_ptr<S>(), opac.data_ptr<S>(), N, false);
   g_stats.project += omp_get_wtime() - tc;
+  Visible vis;
   for (int64_t c = 0; c < C; ++c) {
     const Camera cam = camera_of(viewmats, Ks, c);
     double t0 = omp_get_wtime();
-    project_camera<S>(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(), n.data_ptr<S>(), consts, N, cam,
-                      st, P);
+    project_camera<S>(groups, cam, st, P, vis);
     g_stats.project += omp_get_wtime() - t0;
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
-    const Bins<S> B = bin_and_sort(P, N, opac.data_ptr<S>(), f, int(D), st, g_stats);
+    const Bins<S> B = bin_and_sort(P, groups, vis, f, int(D), st, g_stats);
     auto ptr = [&](const torch::Tensor& t, int64_t per) -> const S* {
       return t.numel() ? t.data_ptr<S>() + c * HW * per : nullptr;
     };
@@ -1191,6 +1358,7 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
     S *gm = g_means.data_ptr<S>(), *gu = g_U.data_ptr<S>(), *gv = g_V.data_ptr<S>();
     S *gn = g_n.data_ptr<S>(), *go = g_op.data_ptr<S>();
     S* gf = g_feat.data_ptr<S>() + (shared ? 0 : c * N * D);
+    // splat i is at position i (groups in id order), and only the binned splats have a rect
 #pragma omp parallel for schedule(static)
     for (int64_t i = 0; i < N; ++i) {
       const int* r = &P.rect[4 * i];
