@@ -632,11 +632,11 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
     // splat covers are visited), the blend masks kept in registers instead of masked stores, and
     // exp inline. Records are prefetched a few splats ahead (the tile lists them in depth order,
     // scattered in memory).
-    int alive[TS];  // pixels of each row not yet terminated
+    uint32_t live[TS];  // per row, a bit for each pixel in the image not yet terminated
     int rows_alive = 0;
     for (int r = 0; r < TS; ++r) {
-      alive[r] = ty * TS + r < st.H ? std::min(TS, st.W - tx * TS) : 0;
-      rows_alive += alive[r] > 0;
+      live[r] = ty * TS + r < st.H ? (1u << std::min(TS, st.W - tx * TS)) - 1 : 0u;
+      rows_alive += live[r] != 0;
     }
     const bool dz = fl.depth || fl.dist;
     const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1.0f), vnear = _mm256_set1_ps(near);
@@ -662,14 +662,15 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
       const __m256 m6 = _mm256_set1_ps(M[6]), m7 = _mm256_set1_ps(M[7]), m8 = _mm256_set1_ps(M[8]);
       const __m256 vj = _mm256_castsi256_ps(_mm256_set1_epi32(j));
       const __m256 vj1 = _mm256_castsi256_ps(_mm256_set1_epi32(j + 1));
-      const int c0 = sp.g0 * LANES, c1 = sp.g1 * LANES;
       for (int p00 = sp.p0; p00 < sp.p1; p00 += TS) {
-        int& row_alive = alive[p00 / TS];
-        if (row_alive == 0) continue;  // every pixel of this row has terminated
+        uint32_t& row_live = live[p00 / TS];
+        if (row_live == 0) continue;  // every pixel of this row has terminated
         const Row<float> rw = row_of(M, py[p00], my);
-        evals += c1 - c0;
         const RowVec rv = row_vec(rw);
-        for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
+        for (int cg = sp.g0; cg < sp.g1; ++cg) {
+          if (((row_live >> (cg * LANES)) & 0xffu) == 0) continue;  // its 8 pixels have terminated
+          const int pg = p00 + cg * LANES;
+          evals += LANES;
           const __m256 x = _mm256_load_ps(px + pg);
           const Hit8 h = hit8(x, rv, vmx, m6, m7, m8);
           const __m256 nz = h.nz, z = h.z, g = h.g;
@@ -685,8 +686,8 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
           blends += __builtin_popcount(unsigned(bm));
           if (sm) {
             _mm256_store_ps(act + pg, _mm256_andnot_ps(stop, actp));
-            row_alive -= __builtin_popcount(unsigned(sm));
-            rows_alive -= row_alive == 0;
+            row_live &= ~(uint32_t(sm) << (cg * LANES));
+            rows_alive -= row_live == 0;
           }
           if (!bm) continue;
           const __m256 wp = _mm256_and_ps(blend, _mm256_mul_ps(a, Tp));
