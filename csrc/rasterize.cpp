@@ -2,9 +2,11 @@
 // early termination, and the analytic backward pass (optionally the FisherRF squared mode).
 //
 // The equations are those of flightrecon/render/projection.py (the readable statement, tested
-// against gsplat) and of the 2DGS section of spec/baselines.md. Per camera: project every splat
-// (parallel over splats), bin into 16x16 tiles in splat order, stable-sort each tile by depth
-// (ties keep the lower index), then blend each tile (parallel over tiles). The blend loops run
+// against gsplat) and of the 2DGS section of spec/baselines.md. Once per call, the splats are
+// grouped spatially for culling (SplatGroups). Per camera: project the splats of the groups that
+// may reach the frustum (parallel over groups), sort the binned ones by depth (ties keep the lower
+// index), list them per 16x16 tile in that order, then blend each tile (parallel over tiles), or
+// a whole camera per thread when there are many cameras. The blend loops run
 // splats outside and the tile's pixels inside, branch-free, so the compiler vectorizes them over
 // pixels; only the rows a splat's box covers are visited.
 //
@@ -27,6 +29,7 @@
 #include <cstring>
 #include <type_traits>
 #include <map>
+#include <numeric>
 #include <string>
 #include <vector>
 
@@ -48,16 +51,14 @@ constexpr int NSYM = NG * (NG + 1) / 2;
 
 // One camera's projected splats (struct of arrays over all N splats, by SplatGroups position).
 // Only the splats of the groups that pass the camera's frustum test are written (project_camera);
-// every other rect is kept empty.
+// the backward, which reads every splat's rect, does not cull.
 template <typename S>
 struct Projected {
   std::vector<S> M, m2d, depth, nrm, sign;
   std::vector<int> rect;  // px0, py0, px1, py1 (inclusive); px0 > px1 when not binned
   std::vector<int> radii;
   explicit Projected(int64_t n)
-      : M(9 * n), m2d(2 * n), depth(n), nrm(3 * n), sign(n), rect(4 * n, 0), radii(n) {
-    for (int64_t i = 0; i < n; ++i) rect[4 * i] = 1;
-  }
+      : M(9 * n), m2d(2 * n), depth(n), nrm(3 * n), sign(n), rect(4 * n), radii(n) {}
 };
 
 #if FR_AVX2
@@ -157,6 +158,7 @@ inline void radix_sort(std::vector<uint32_t>& key, std::vector<int32_t>& id) {
 // along a Morton curve of their means, so each run of GROUP consecutive positions is spatially
 // compact, and each run (group) gets a sphere holding its splats' bounding spheres. A camera then
 // projects only the splats of the groups whose sphere may reach its frustum, instead of all N.
+// Without culling (one camera) the splats stay in id order and nothing is copied.
 // The per-splat values that do not depend on the camera live here too, in the same order: the
 // bounding-sphere radius of the frustum test and the opacity-aware cutoff (rho_max, <= 0 when the
 // splat can never reach ALPHA_MIN) with its conic scale and filter reach.
@@ -166,11 +168,16 @@ constexpr int MORTON_BITS = 10;  // per axis
 template <typename S>
 struct SplatGroups {
   int64_t N = 0;
-  std::vector<int32_t> id;          // position -> splat id
-  std::vector<S> mean, U, V, n;     // 3 per position
-  std::vector<S> opac, rad, cut, freach;
+  std::vector<int32_t> id;                   // position -> splat id
+  const S *mean, *U, *V, *n, *opac;          // by position (3 values a splat, opac 1)
+  std::vector<S> sorted;                     // what they point to when culling, else the inputs
+  std::vector<S> rad, cut, freach;
   std::vector<double> rho_max;
-  std::vector<double> sphere;       // per group: center (3), radius
+  std::vector<double> sphere;                // per group when culling: center (3), radius
+  SplatGroups() = default;
+  SplatGroups(const SplatGroups&) = delete;  // the pointers may point into `sorted`
+  SplatGroups(SplatGroups&&) = default;
+  bool culls() const { return !sphere.empty(); }
   int groups() const { return int((N + GROUP - 1) / GROUP); }
   int64_t begin(int g) const { return int64_t(g) * GROUP; }
   int64_t end(int g) const { return std::min(N, int64_t(g + 1) * GROUP); }
@@ -189,8 +196,9 @@ inline uint32_t spread_bits(uint32_t v) {
 // Splat ids in Morton order of their means quantized in the means' bounding box.
 template <typename S>
 std::vector<int32_t> morton_order(const S* means, int64_t N) {
-  double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-  for (int64_t i = 0; i < N; ++i)
+  if (N == 0) return {};
+  double lo[3] = {means[0], means[1], means[2]}, hi[3] = {means[0], means[1], means[2]};
+  for (int64_t i = 1; i < N; ++i)
     for (int a = 0; a < 3; ++a) {
       lo[a] = std::min(lo[a], double(means[3 * i + a]));
       hi[a] = std::max(hi[a], double(means[3 * i + a]));
@@ -213,7 +221,57 @@ std::vector<int32_t> morton_order(const S* means, int64_t N) {
   return id;
 }
 
-// spatial: groups in Morton order (culling pays); else in id order, so that position == id.
+// Copies splat g.id[s] to position s of `sorted`.
+template <typename S>
+void gather_splat(SplatGroups<S>& g, int64_t s, const S* means, const S* U, const S* V, const S* n, const S* opac) {
+  const int64_t i = g.id[s], N = g.N;
+  S* out = g.sorted.data();
+  for (int a = 0; a < 3; ++a) {
+    out[3 * s + a] = means[3 * i + a];
+    out[3 * (N + s) + a] = U[3 * i + a];
+    out[3 * (2 * N + s) + a] = V[3 * i + a];
+    out[3 * (3 * N + s) + a] = n[3 * i + a];
+  }
+  out[12 * N + s] = opac[i];
+}
+
+// The camera-independent values of the splat at position s.
+template <typename S>
+void splat_consts(SplatGroups<S>& g, int64_t s) {
+  const S* u = g.U + 3 * s;
+  const S* v = g.V + 3 * s;
+  g.rad[s] = S(CUTOFF * 1.01) * std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  // alpha = o exp(-rho / 2) reaches ALPHA_MIN only where rho <= 2 ln(o / ALPHA_MIN) (plus a
+  // margin for float error); never more than the fixed CUTOFF, which is the o = 1 case
+  const double rho_max = std::min(2.0 * std::log(double(g.opac[s]) / ALPHA_MIN) + RHO_MARGIN, CUTOFF * CUTOFF);
+  g.rho_max[s] = rho_max;
+  g.cut[s] = rho_max > 0 ? S(std::sqrt(rho_max)) : S(0);
+  g.freach[s] = rho_max > 0 ? S(std::min(FILTER_REACH, std::sqrt(rho_max / FILTER_INV_SQ))) : S(0);
+}
+
+// Group k's sphere: its means' box center, and a radius that holds each splat's bounding sphere.
+template <typename S>
+void bound_group(SplatGroups<S>& g, int k) {
+  const int64_t s0 = g.begin(k), s1 = g.end(k);
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = g.mean[3 * s0 + a];
+  for (int64_t s = s0 + 1; s < s1; ++s)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], double(g.mean[3 * s + a]));
+      hi[a] = std::max(hi[a], double(g.mean[3 * s + a]));
+    }
+  double* c = &g.sphere[4 * size_t(k)];
+  for (int a = 0; a < 3; ++a) c[a] = 0.5 * (lo[a] + hi[a]);
+  double r = 0;
+  for (int64_t s = s0; s < s1; ++s) {
+    const S* p = &g.mean[3 * s];
+    const double dx = p[0] - c[0], dy = p[1] - c[1], dz = p[2] - c[2];
+    r = std::max(r, std::sqrt(dx * dx + dy * dy + dz * dz) + double(g.rad[s]));
+  }
+  c[3] = r;
+}
+
+// spatial: groups in Morton order, for culling; else in id order (position == id), no culling.
 template <typename S>
 SplatGroups<S> group_splats(const S* means, const S* U, const S* V, const S* n, const S* opac, int64_t N,
                             bool spatial) {
@@ -221,52 +279,24 @@ SplatGroups<S> group_splats(const S* means, const S* U, const S* V, const S* n, 
   g.N = N;
   if (spatial) {
     g.id = morton_order(means, N);
+    g.sorted.resize(13 * size_t(N));
+    S* m = g.sorted.data();
+    g.mean = m, g.U = m + 3 * N, g.V = m + 6 * N, g.n = m + 9 * N, g.opac = m + 12 * N;
+    g.sphere.resize(4 * size_t(g.groups()));
   } else {
     g.id.resize(N);
-    for (int64_t i = 0; i < N; ++i) g.id[i] = int32_t(i);
+    std::iota(g.id.begin(), g.id.end(), 0);
+    g.mean = means, g.U = U, g.V = V, g.n = n, g.opac = opac;
   }
-  g.mean.resize(3 * N); g.U.resize(3 * N); g.V.resize(3 * N); g.n.resize(3 * N);
-  g.opac.resize(N); g.rad.resize(N); g.cut.resize(N); g.freach.resize(N); g.rho_max.resize(N);
-#pragma omp parallel for schedule(static)
-  for (int64_t s = 0; s < N; ++s) {
-    const int64_t i = g.id[s];
-    for (int a = 0; a < 3; ++a) {
-      g.mean[3 * s + a] = means[3 * i + a];
-      g.U[3 * s + a] = U[3 * i + a];
-      g.V[3 * s + a] = V[3 * i + a];
-      g.n[3 * s + a] = n[3 * i + a];
-    }
-    g.opac[s] = opac[i];
-    const S* u = U + 3 * i;
-    const S* v = V + 3 * i;
-    g.rad[s] = S(CUTOFF * 1.01) * std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    // alpha = o exp(-rho / 2) reaches ALPHA_MIN only where rho <= 2 ln(o / ALPHA_MIN) (plus a
-    // margin for float error); never more than the fixed CUTOFF, which is the o = 1 case
-    const double rho_max = std::min(2.0 * std::log(double(opac[i]) / ALPHA_MIN) + RHO_MARGIN, CUTOFF * CUTOFF);
-    g.rho_max[s] = rho_max;
-    g.cut[s] = rho_max > 0 ? S(std::sqrt(rho_max)) : S(0);
-    g.freach[s] = rho_max > 0 ? S(std::min(FILTER_REACH, std::sqrt(rho_max / FILTER_INV_SQ))) : S(0);
-  }
+  g.rad.resize(N); g.cut.resize(N); g.freach.resize(N); g.rho_max.resize(N);
   const int G = g.groups();
-  g.sphere.resize(4 * size_t(G));
 #pragma omp parallel for schedule(static)
   for (int k = 0; k < G; ++k) {
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (int64_t s = g.begin(k); s < g.end(k); ++s)
-      for (int a = 0; a < 3; ++a) {
-        lo[a] = std::min(lo[a], double(g.mean[3 * s + a]));
-        hi[a] = std::max(hi[a], double(g.mean[3 * s + a]));
-      }
-    double* sph = &g.sphere[4 * size_t(k)];
-    for (int a = 0; a < 3; ++a) sph[a] = 0.5 * (lo[a] + hi[a]);
-    double r = 0;
     for (int64_t s = g.begin(k); s < g.end(k); ++s) {
-      const double* c = sph;
-      const S* p = &g.mean[3 * s];
-      const double dx = p[0] - c[0], dy = p[1] - c[1], dz = p[2] - c[2];
-      r = std::max(r, std::sqrt(dx * dx + dy * dy + dz * dz) + double(g.rad[s]));
+      if (spatial) gather_splat(g, s, means, U, V, n, opac);
+      splat_consts(g, s);
     }
-    sph[3] = r;
+    if (spatial) bound_group(g, k);
   }
   return g;
 }
@@ -389,11 +419,9 @@ template <typename S>
 void project_camera(const SplatGroups<S>& G, const Camera& cam, const Settings& st, Projected<S>& P,
                     Visible& vis) {
   const Frustum fr = frustum_of(cam, st);
-  for (const int k : vis.groups)  // the previous camera's splats: only they can have a rect
-    for (int64_t s = G.begin(k); s < G.end(k); ++s) P.rect[4 * s] = 1, P.rect[4 * s + 2] = 0;
   vis.groups.clear();
   for (int k = 0; k < G.groups(); ++k)
-    if (!(fr.pinhole && group_outside(&G.sphere[4 * size_t(k)], cam, fr, st.near))) vis.groups.push_back(k);
+    if (!(fr.pinhole && G.culls() && group_outside(&G.sphere[4 * size_t(k)], cam, fr, st.near))) vis.groups.push_back(k);
   const int ng = int(vis.groups.size());
 #pragma omp parallel for schedule(static)
   for (int e = 0; e < ng; ++e)
@@ -412,7 +440,7 @@ void project_camera(const SplatGroups<S>& G, const Camera& cam, const Settings& 
 // One camera's radii by splat id (0 where not visible).
 template <typename S>
 void write_radii(const SplatGroups<S>& G, const Visible& vis, const Projected<S>& P, int32_t* radii) {
-  std::fill(radii, radii + G.N, 0);
+  if (int(vis.groups.size()) < G.groups()) std::fill(radii, radii + G.N, 0);  // some were culled
   for (const int k : vis.groups)
     for (int64_t s = G.begin(k); s < G.end(k); ++s) radii[G.id[s]] = P.radii[s];
 }
@@ -863,7 +891,9 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
   std::vector<Stats> per(C);
   const S *pm = means.data_ptr<S>(), *pu = U.data_ptr<S>(), *pv = V.data_ptr<S>(), *pn = n.data_ptr<S>();
   const double tc = omp_get_wtime();
-  const SplatGroups<S> groups = group_splats(pm, pu, pv, pn, opac.data_ptr<S>(), N, true);
+  // The Morton sort pays when several cameras share it; one camera (the mapper's renders) sees
+  // much of the map, and its splats are projected in id order as before.
+  const SplatGroups<S> groups = group_splats(pm, pu, pv, pn, opac.data_ptr<S>(), N, C > 1);
   const double groups_s = omp_get_wtime() - tc;
   // One camera: project, bin, sort, blend. Its inner parallel loops run serially when called from
   // the camera-parallel region below (nested parallelism is off), in parallel otherwise.
@@ -1309,8 +1339,8 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
   Projected<S> P(N);
   g_stats = Stats();
   const double tc = omp_get_wtime();
-  // Groups in id order: the chain rule below runs over splat ids. (The backward serves the
-  // mapper, whose few cameras each see much of the map, so Morton-ordered culling buys little.)
+  // Groups in id order, without culling: the chain rule below runs over all splat ids and their
+  // rects. (The backward serves the mapper, whose few cameras each see much of the map.)
   const SplatGroups<S> groups = group_splats(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(),
                                              n.data_ptr<S>(), opac.data_ptr<S>(), N, false);
   g_stats.project += omp_get_wtime() - tc;
@@ -1359,7 +1389,7 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
     S *gm = g_means.data_ptr<S>(), *gu = g_U.data_ptr<S>(), *gv = g_V.data_ptr<S>();
     S *gn = g_n.data_ptr<S>(), *go = g_op.data_ptr<S>();
     S* gf = g_feat.data_ptr<S>() + (shared ? 0 : c * N * D);
-    // splat i is at position i (groups in id order), and only the binned splats have a rect
+    // splat i is at position i (groups in id order, no culling: every rect is this camera's)
 #pragma omp parallel for schedule(static)
     for (int64_t i = 0; i < N; ++i) {
       const int* r = &P.rect[4 * i];
