@@ -340,10 +340,10 @@ inline bool group_outside(const double* sph, const Camera& cam, const Frustum& f
   return false;
 }
 
-// Projects the splat at position s into P (same position); its rect stays empty (px0 > px1) when
-// it cannot touch the image.
+// Projects the splat at position s into P (same position); whether it touches the image (is
+// binned; else its rect stays empty, px0 > px1).
 template <typename S>
-void project_splat(const SplatGroups<S>& G, int64_t s, const Camera& cam, const Frustum& fr,
+bool project_splat(const SplatGroups<S>& G, int64_t s, const Camera& cam, const Frustum& fr,
                    const Settings& st, Projected<S>& P) {
   const S* mean = &G.mean[3 * s];
   S pc[3], uc[3], vc[3], nc[3];
@@ -359,7 +359,7 @@ void project_splat(const SplatGroups<S>& G, int64_t s, const Camera& cam, const 
     bool out = !(pc[2] > S(st.near));
     for (int k = 0; k < 4; ++k)
       out = out || S(fr.planes[k][0]) * pc[k / 2] + S(fr.planes[k][1]) * pc[2] < -rad;
-    if (out) return;
+    if (out) return false;
   }
   const S *U = &G.U[3 * s], *V = &G.V[3 * s], *n = &G.n[3 * s];
   for (int r = 0; r < 3; ++r) {
@@ -381,7 +381,7 @@ void project_splat(const SplatGroups<S>& G, int64_t s, const Camera& cam, const 
   const S z = pc[2];
   P.depth[s] = z;
   const S reach = S(CUTOFF) * std::sqrt(uc[2] * uc[2] + vc[2] * vc[2]);
-  if (!(z > S(st.near) && z < S(st.far) && z - reach > 0)) return;
+  if (!(z > S(st.near) && z < S(st.far) && z - reach > 0)) return false;
   S cx, cy, ex, ey, d;
   conic_box(M, M + 3, M + 6, S(1), cx, cy, ex, ey, d);
   P.m2d[2 * s] = cx;
@@ -390,30 +390,33 @@ void project_splat(const SplatGroups<S>& G, int64_t s, const Camera& cam, const 
   conic_box(M, M + 3, M + 6, S(CUTOFF), bx, by, bex, bey, bd);
   S lox = std::min(bx - bex, cx - S(FILTER_REACH)), hix = std::max(bx + bex, cx + S(FILTER_REACH));
   S loy = std::min(by - bey, cy - S(FILTER_REACH)), hiy = std::max(by + bey, cy + S(FILTER_REACH));
-  if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) return;
+  if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) return false;
   P.radii[s] = int(std::ceil(S(CUTOFF) * std::max(ex, ey)));  // geometric: independent of opacity
   // Opacity-aware extent (SplatGroups): the binned box (and with it the tiles and the blend's rows
   // and column groups) shrinks with the opacity; never wider than the fixed CUTOFF / FILTER_REACH
   // box above, which is the o = 1 case.
-  if (!(G.rho_max[s] > 0)) return;
+  if (!(G.rho_max[s] > 0)) return false;
   const S cut = G.cut[s], freach = G.freach[s];
   conic_box(M, M + 3, M + 6, cut, bx, by, bex, bey, bd);
   lox = std::min(bx - bex, cx - freach), hix = std::max(bx + bex, cx + freach);
   loy = std::min(by - bey, cy - freach), hiy = std::max(by + bey, cy + freach);
-  if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) return;
+  if (!(hix > 0 && lox < S(st.W) && hiy > 0 && loy < S(st.H))) return false;
   // Pixel i is covered when lo <= i + 0.5 <= hi; clamp in double before converting to int.
   rect[0] = int(std::max(0.0, std::ceil(double(lox) - 0.5 - BOX_EPS)));
   rect[1] = int(std::max(0.0, std::ceil(double(loy) - 0.5 - BOX_EPS)));
   rect[2] = int(std::min(double(st.W - 1), std::floor(double(hix) - 0.5 + BOX_EPS)));
   rect[3] = int(std::min(double(st.H - 1), std::floor(double(hiy) - 0.5 + BOX_EPS)));
+  return rect[0] <= rect[2] && rect[1] <= rect[3];  // the box may fall between pixel centers
 }
 
 // What one camera may see: the groups that pass the frustum test (their splats are projected, the
 // others keep radius 0) and, of their splats, the positions that touch the image, increasing.
 struct Visible {
   std::vector<int32_t> groups;
+  std::vector<uint32_t> masks;  // per passing group: a bit for each binned splat
   std::vector<int32_t> binned;
 };
+static_assert(GROUP <= 32, "a group's binned splats are one 32-bit mask");
 
 template <typename S>
 void project_camera(const SplatGroups<S>& G, const Camera& cam, const Settings& st, Projected<S>& P,
@@ -423,18 +426,19 @@ void project_camera(const SplatGroups<S>& G, const Camera& cam, const Settings& 
   for (int k = 0; k < G.groups(); ++k)
     if (!(fr.pinhole && G.culls() && group_outside(&G.sphere[4 * size_t(k)], cam, fr, st.near))) vis.groups.push_back(k);
   const int ng = int(vis.groups.size());
+  vis.masks.resize(ng);
 #pragma omp parallel for schedule(static)
+  for (int e = 0; e < ng; ++e) {
+    const int64_t s0 = G.begin(vis.groups[e]), s1 = G.end(vis.groups[e]);
+    uint32_t mask = 0;
+    for (int64_t s = s0; s < s1; ++s) mask |= uint32_t(project_splat(G, s, cam, fr, st, P)) << (s - s0);
+    vis.masks[e] = mask;
+  }
+  // the binned positions from the masks (not from P's rects, which are out of cache by now)
+  vis.binned.clear();
   for (int e = 0; e < ng; ++e)
-    for (int64_t s = G.begin(vis.groups[e]); s < G.end(vis.groups[e]); ++s) project_splat(G, s, cam, fr, st, P);
-  vis.binned.resize(size_t(ng) * GROUP);
-  int64_t V = 0;
-  for (const int k : vis.groups)
-    for (int64_t s = G.begin(k); s < G.end(k); ++s) {  // branch-free: visibility is random
-      const int* r = &P.rect[4 * s];
-      vis.binned[V] = int32_t(s);
-      V += (r[0] <= r[2]) & (r[1] <= r[3]);
-    }
-  vis.binned.resize(V);
+    for (uint32_t m = vis.masks[e]; m != 0; m &= m - 1)
+      vis.binned.push_back(int32_t(G.begin(vis.groups[e]) + __builtin_ctz(m)));
 }
 
 // One camera's radii by splat id (0 where not visible).
