@@ -30,12 +30,27 @@ def machine() -> dict:
 
     return {"cpu": platform.processor() or platform.machine(), "cores": os.cpu_count(),
             "torch_threads": torch.get_num_threads(), "cuda": torch.cuda.is_available(),
-            "python": platform.python_version(), "torch": torch.__version__}
+            "python": platform.python_version(), "torch": torch.__version__,
+            "load_avg_1m": round(os.getloadavg()[0], 2)}
+
+
+def contention_warning(info: dict) -> str | None:
+    """A warning when other processes competed for the cores during the run.
+
+    The rasterizer's OpenMP threads spin at barriers, so with more runnable threads than cores a
+    frame can take several times its quiet time: such figures are not the project's speed.
+    """
+    load, cores = info.get("load_avg_1m", 0.0), info.get("cores") or 1
+    if load > cores + 0.5:
+        return (f"WARNING: load average {load} on {cores} cores at the end of the run: other processes "
+                "competed for the CPU, so these timings overstate the quiet figures")
+    return None
 
 
 def report(name: str, rows: list[dict], out: str | None = None, extra: dict | None = None) -> dict:
     """Print rows as a Markdown table and optionally write them, with the machine, as JSON."""
-    result = {"bench": name, "machine": machine(), "rows": rows, **(extra or {})}
+    info = machine()
+    result = {"bench": name, "machine": info, "rows": rows, **(extra or {})}
     if rows:
         keys = list(dict.fromkeys(k for r in rows for k in r))
         print(f"\n## bench {name}\n")
@@ -45,6 +60,9 @@ def report(name: str, rows: list[dict], out: str | None = None, extra: dict | No
             print("| " + " | ".join(_fmt(r.get(k, "")) for k in keys) + " |")
     for k, v in (extra or {}).items():
         print(f"{k}: {json.dumps(v) if not isinstance(v, str) else v}")
+    warning = contention_warning(info)
+    if warning:
+        print(warning)
     if out:
         write_json(out, result)
     return result
