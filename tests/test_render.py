@@ -236,11 +236,13 @@ def test_batched_cameras_equal_single_calls_exactly():
 
 def test_culled_batch_equals_single_calls_exactly():
     """Cameras looking every way from inside a cloud of splats: a batch culls whole splat groups
-    against each camera's frustum (a single camera projects every splat), so splats behind, beside
-    and across the near plane or the frustum sides must come out the same bit for bit."""
+    against each camera's frustum and orders splats spatially (a single camera projects every splat
+    in id order), so splats behind, beside and across the near plane or the frustum sides, and
+    splats of equal depth, must come out the same bit for bit."""
     n, c = 4000, 8
     scene = make_scene(n, seed=11)
     scene[0] = torch.randn(n, 3, generator=torch.Generator().manual_seed(12)) * 1.5
+    scene[0][:400, 2] = 2.0  # equal depths in camera 0: the tie rule (lower id first) decides
     yaw = torch.arange(c) * (2 * torch.pi / c)
     vm = torch.eye(4).repeat(c, 1, 1)
     vm[:, 0, 0], vm[:, 0, 2], vm[:, 2, 0], vm[:, 2, 2] = yaw.cos(), yaw.sin(), -yaw.sin(), yaw.cos()
