@@ -1,5 +1,6 @@
 """Online optimization on MuJoCo RGB-D views of a procedural scene, with the C++ rasterizer."""
 
+import copy
 import logging
 
 import numpy as np
@@ -9,7 +10,8 @@ import torch
 from flightrecon.config import MapperConfig, load_config
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.image_metrics import depth_l1
-from flightrecon.mapping.mapper import OnlineMapper, seed_share
+from flightrecon.mapping.mapper import TRAIN_OUTPUTS, OnlineMapper, frustum_rows, seed_share
+from flightrecon.render import render
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world
@@ -103,3 +105,61 @@ def test_seed_density_on_the_surface_does_not_depend_on_the_image_size(views):
     assert seed_share(off, 2 * W, 2 * H) == seed_share(off, W, H) == 0.01
     assert seed_share(MapperConfig(init_subsample=0.1), 320, 240) == 0.4
     assert seed_share(MapperConfig(init_subsample=0.5), 320, 240) == 1.0
+
+
+def test_training_the_cameras_splats_equals_training_the_whole_map(views):
+    """_optimize trains a gathered copy of the splats that may reach the camera: every column of the
+    map (parameters, moments, steps, observation counts) must end bit for bit as a full-map run leaves
+    it. Torch computes the last few elements of an elementwise op (e.g. the sigmoid) with its scalar
+    formula, which can differ from the vector one in the last bit, so the same splat can round
+    differently at another position; the map is cut so the camera's splats are exactly the first
+    rows, a multiple of 32 long: then both runs take the vector path for every one of them."""
+    K, vs = views
+    scene = make_scene("office0", 0)
+    cam = RGBDCamera(build_world(scene, load_config(None), with_drone=False), W, H, 90.0, 0.05, 10.0)
+    behind = camera_pose([0.0, 0.0, 1.2], 0.5 + np.pi, 25.0)
+    subset = _mapper(k_new=3, k_replay=0)
+    subset.add_frame(vs[0][0], vs[0][1], K, vs[0][2])
+    n0 = len(subset.map)
+    subset.add_frame(*cam.render(behind), K, behind)
+    keep = torch.ones(len(subset.map), dtype=torch.bool)
+    keep[n0 // 32 * 32:n0] = False  # the other view's splats stay, behind the camera
+    subset.map.keep(keep)
+    full = copy.deepcopy(subset)
+    frame = subset.frames[0]
+    rows = frustum_rows(subset.map["means"], subset.map["log_scales"], frame.viewmat, frame.K, W, H,
+                        subset.near, subset.far)
+    assert torch.equal(rows, torch.arange(n0 // 32 * 32)) and len(rows) < len(subset.map)
+    subset._optimize(frame, 5, count_observed=True)
+
+    target = full._target(frame)
+    leaves = full.adam.leaves()
+    for it in range(5):
+        out = full._render(leaves, frame.viewmat[None], frame.K[None], W, H, TRAIN_OUTPUTS)
+        full._loss(out, target).backward()
+        visible = torch.nonzero(out.radii[0] > 0, as_tuple=True)[0]
+        if it == 0:
+            full.map["n_observed"][visible] += 1
+        full.adam.step(leaves, visible)
+    for name in subset.map._cols:
+        assert torch.equal(subset.map[name], full.map[name]), name
+    assert bool((subset.map["adam_step"] > 3).any())  # the 5 iterations did update splats
+
+
+def test_frustum_rows_keep_every_splat_the_rasterizer_draws():
+    g = torch.Generator().manual_seed(0)
+    N = 40000
+    means = torch.rand(N, 3, generator=g) * 8 - 4
+    quats = torch.randn(N, 4, generator=g)
+    log_scales = torch.rand(N, 2, generator=g) * 5 - 5  # 7 mm .. 1 m
+    opacity_logits = torch.randn(N, generator=g) * 3
+    colors = torch.rand(N, 3, generator=g)
+    K = torch.tensor([[80.0, 0.0, 47.0], [0.0, 80.0, 37.0], [0.0, 0.0, 1.0]])
+    for T in (camera_pose([0.0, 0.0, 0.0], 0.3, 10.0), camera_pose([1.0, -1.0, 0.5], 2.5, -30.0)):
+        viewmat = torch.as_tensor(np.linalg.inv(T), dtype=torch.float32)
+        out = render(means, quats, log_scales, opacity_logits, colors, viewmat[None], K[None], W, H,
+                     near=0.05, far=10.0, outputs=("alpha",), backend="cpu")
+        drawn = torch.nonzero(out.radii[0] > 0, as_tuple=True)[0]
+        rows = frustum_rows(means, log_scales, viewmat, K, W, H, 0.05, 10.0)
+        assert len(drawn) > 0 and len(rows) < N // 2
+        assert bool(torch.isin(drawn, rows).all())

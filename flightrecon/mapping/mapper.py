@@ -24,6 +24,7 @@ from flightrecon.mapping.optimizer import SparseAdam
 from flightrecon.mapping.store import GaussianMap
 from flightrecon.mapping.voxel_hash import reject_near
 from flightrecon.render import render
+from flightrecon.render.projection import CUTOFF, FILTER_REACH
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +57,40 @@ def default_device(backend: str) -> torch.device:
     if backend == "cuda" or (backend == "auto" and torch.cuda.is_available()):
         return torch.device("cuda")
     return torch.device("cpu")
+
+
+@torch.no_grad()
+def frustum_rows(means: torch.Tensor, log_scales: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor,
+                 width: int, height: int, near: float, far: float) -> torch.Tensor:
+    """Increasing indices of every splat that the rasterizer could draw into this camera's image.
+
+    The rasterizer draws a splat only if its mean's depth is in (near, far) and its box (the image of
+    its CUTOFF-sigma disk, widened around the projected center by the low-pass reach) meets the image.
+    The disk lies in the ball of radius CUTOFF |(U, V)| = CUTOFF sqrt(s_u^2 + s_v^2) around the mean,
+    so a ball wholly outside a frustum plane widened by that reach (the test of the rasterizer's own
+    group culling) rules the splat out. The radius and the plane offsets carry margins for the
+    float rounding of the rasterizer's per-splat test, so the test errs only towards keeping.
+    Cameras with a skewed or non-pinhole K keep every splat.
+    """
+    N = means.shape[0]
+    k = K.double()
+    if not (k[0, 1] == 0 and k[1, 0] == 0 and k[2, 0] == 0 and k[2, 1] == 0 and k[2, 2] == 1
+            and k[0, 0] > 0 and k[1, 1] > 0):
+        return torch.arange(N, device=means.device)
+    R, t = viewmat[:3, :3].double(), viewmat[:3, 3].double()
+    c = means.double() @ R.T + t
+    radius = CUTOFF * 1.01 * torch.exp(2.0 * log_scales.double()).sum(-1).sqrt()
+    slack = 1e-4 * (1.0 + c.abs().sum(-1) + radius + float(t.abs().sum()))
+    r = radius + slack
+    z = c[:, 2]
+    keep = (z > near - slack) & (z < far + slack)
+    m = FILTER_REACH + 1.0
+    fx, fy, cx, cy = float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])
+    for axis, (a, b) in ((0, (fx, cx + m)), (0, (-fx, width + m - cx)), (1, (fy, cy + m)),
+                         (1, (-fy, height + m - cy))):
+        norm = (a * a + b * b) ** 0.5
+        keep &= (a * c[:, axis] + b * z) / norm >= -r
+    return torch.nonzero(keep, as_tuple=True)[0]
 
 
 class OnlineMapper:
@@ -112,21 +147,34 @@ class OnlineMapper:
         return len(cand["points"])
 
     def _optimize(self, frame: StoredFrame, iters: int, count_observed: bool = False) -> None:
+        """`iters` Adam iterations on one frame, on the splats that may reach its image.
+
+        Only splats the camera can see get gradient and updates, and the rest stay fixed during the
+        call, so one conservative frustum test at the start picks every splat that could touch the
+        image in any iteration; the iterations train a gathered copy of those rows (in id order, so
+        the rasterizer's depth ties break alike) and write it back once. Renders, gradients and
+        updates equal a full-map run's, at a per-iteration cost that scales with the view."""
         if iters <= 0 or len(self.map) == 0:
             return
         target = self._target(frame)
         H, W = target.depth.shape[:2]
         viewmat = frame.viewmat.to(self.device)[None]
         Ks = frame.K.to(self.device)[None]
-        leaves = self.adam.leaves()
+        rows = frustum_rows(self.map["means"], self.map["log_scales"], viewmat[0], Ks[0], W, H,
+                            self.near, self.far)
+        if len(rows) == 0:
+            return
+        state = self.adam.gather(rows)
+        leaves = self.adam.leaves(state)
         for it in range(iters):
             out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS)
             loss = self._loss(out, target)
             loss.backward()
             visible = torch.nonzero(out.radii[0] > 0, as_tuple=True)[0]
             if count_observed and it == 0:
-                self.map["n_observed"][visible] += 1
-            self.adam.step(leaves, visible)
+                self.map["n_observed"][rows[visible]] += 1
+            self.adam.step(leaves, visible, state)
+        self.adam.scatter(rows, state)
 
     # -- queries --------------------------------------------------------------------------------
     def _render(self, p: dict[str, torch.Tensor], viewmats: torch.Tensor, Ks: torch.Tensor, W: int, H: int,
