@@ -1,7 +1,8 @@
 """Online 2DGS mapping: seconds per frame (K_new + K_replay), model size, and held-out quality.
 
 Trains on a recorded dataset (a survey flight: `flightrecon fly office0 --survey`) exactly as
-`flightrecon map` does. Per dataset it reports the median and mean wall time of one `add_frame`,
+`flightrecon map` does. Per dataset it reports the distribution of the wall time of one `add_frame`
+(median, mean, p90, max: a few slow frames can dominate the mean),
 the map.ply size scaled to 100 training frames, and (with --quality) PSNR / SSIM / depth L1 on the
 held-out views (every `--holdout`-th frame) and on the training views, plus the held-out views' share
 of pixels seen by a training view (`test_coverage`) and PSNR / depth L1 on those pixels alone.
@@ -51,7 +52,9 @@ def run(args: argparse.Namespace) -> dict:
         row = {"dataset": Path(path).name, "size": f"{ds.width}x{ds.height}", "frames": len(res.train),
                "k_new": cfg.mapper.k_new, "k_replay": cfg.mapper.k_replay, "threads": args.threads,
                "backend": cfg.mapper.backend, "s_per_frame_median": statistics.median(res.seconds),
-               "s_per_frame_mean": float(np.mean(res.seconds)), "splats": len(res.mapper.map),
+               "s_per_frame_mean": float(np.mean(res.seconds)),
+               "s_per_frame_p90": float(np.percentile(res.seconds, 90)),
+               "s_per_frame_max": max(res.seconds), "splats": len(res.mapper.map),
                "mb_per_100_frames": size / 1e6 * 100.0 / max(1, len(res.train))}
         if args.quality:
             training = [ds[i] for i in res.train]
