@@ -78,18 +78,19 @@ def frustum_rows(means: torch.Tensor, log_scales: torch.Tensor, viewmat: torch.T
             and k[0, 0] > 0 and k[1, 1] > 0):
         return torch.arange(N, device=means.device)
     R, t = viewmat[:3, :3].double(), viewmat[:3, 3].double()
-    c = means.double() @ R.T + t
-    radius = CUTOFF * 1.01 * torch.exp(2.0 * log_scales.double()).sum(-1).sqrt()
-    slack = 1e-4 * (1.0 + c.abs().sum(-1) + radius + float(t.abs().sum()))
-    r = radius + slack
-    z = c[:, 2]
-    keep = (z > near - slack) & (z < far + slack)
     m = FILTER_REACH + 1.0
     fx, fy, cx, cy = float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])
-    for axis, (a, b) in ((0, (fx, cx + m)), (0, (-fx, width + m - cx)), (1, (fy, cy + m)),
-                         (1, (-fy, height + m - cy))):
-        norm = (a * a + b * b) ** 0.5
-        keep &= (a * c[:, axis] + b * z) / norm >= -r
+    # camera-frame rows (on x, y, z): the four planes a * x_or_y + b * z >= 0 (unit normals), then z
+    A = torch.tensor([[fx, 0.0, cx + m], [-fx, 0.0, width + m - cx], [0.0, fy, cy + m],
+                      [0.0, -fy, height + m - cy]], dtype=torch.float64, device=means.device)
+    A = torch.cat([A / A.norm(dim=1, keepdim=True), A.new_tensor([[0.0, 0.0, 1.0]])])
+    d = torch.addmm((A @ t).to(means.dtype), means, (A @ R).T.to(means.dtype))  # [N, 5] in world terms
+    # float slack: the rasterizer's float test and this one each round by ~1e-7 of the magnitudes
+    slack = 1e-4 * (1.0 + 2.0 * (3.0 * float(means.abs().max()) + float(t.abs().sum())))
+    r = torch.exp(2.0 * log_scales).sum(-1).sqrt_().mul_(CUTOFF * 1.01 * (1.0 + 1e-4)).add_(slack)
+    keep = (d[:, :4] >= -r[:, None]).all(1)
+    z = d[:, 4]
+    keep &= (z > near - slack) & (z < far + slack)
     return torch.nonzero(keep, as_tuple=True)[0]
 
 
