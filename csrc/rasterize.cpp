@@ -8,7 +8,8 @@
 // index), list them per 16x16 tile in that order, then blend each tile (parallel over tiles), or
 // a whole camera per thread when there are many cameras. The blend loops run
 // splats outside and the tile's pixels inside, branch-free, so the compiler vectorizes them over
-// pixels; only the rows a splat's box covers are visited.
+// pixels; only the rows a splat's box covers are visited. A single camera's forward can keep its
+// projection and bins for the backward (RenderCache), which otherwise recomputes them.
 //
 // Determinism: every float sum has a fixed order independent of the thread count. The backward
 // writes each (tile, splat) pair's gradient into its own slot and reduces the slots per splat in
@@ -29,6 +30,7 @@
 #include <cstring>
 #include <type_traits>
 #include <map>
+#include <memory>
 #include <numeric>
 #include <string>
 #include <vector>
@@ -866,13 +868,42 @@ Settings settings_of(int64_t W, int64_t H, double near, double far) {
   return Settings{int(W), int(H), int((W + TS - 1) / TS), int((H + TS - 1) / TS), near, far};
 }
 
+// One camera's projection and bins as a forward call computed them, kept for its backward (which
+// would otherwise redo the same projection, binning and sort). Only a single camera's are kept:
+// its splats stay in id order, the order the backward works in; a batch's forward orders them
+// spatially. Python holds it as an opaque handle; the backward checks that it fits its inputs.
+template <typename S>
+struct KeptCamera {
+  Projected<S> P;
+  Bins<S> B;
+  int64_t N, D, W, H;
+  double near, far;
+  Camera cam;
+  bool fits(int64_t n, int64_t d, int64_t w, int64_t h, double nr, double fr, const Camera& c) const {
+    return n == N && d == D && w == W && h == H && nr == near && fr == far &&
+           std::memcmp(&c, &cam, sizeof(Camera)) == 0;
+  }
+};
+
+struct RenderCache {
+  std::unique_ptr<KeptCamera<float>> f;
+  std::unique_ptr<KeptCamera<double>> d;
+  template <typename S>
+  std::unique_ptr<KeptCamera<S>>& get() {
+    if constexpr (std::is_same<S, float>::value) return f;
+    else return d;
+  }
+};
+
 template <typename S>
 std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, torch::Tensor V,
                                         torch::Tensor n, torch::Tensor opac, torch::Tensor feats,
                                         torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
-                                        double near, double far, const Flags& fl) {
+                                        double near, double far, const Flags& fl, RenderCache* cache) {
   const int64_t N = means.size(0), C = viewmats.size(0), D = feats.size(2);
   const bool shared = feats.size(0) == 1;
+  const bool keep = cache != nullptr && C == 1;
+  if (cache) cache->get<S>().reset();
   auto opt = means.options();
   // every output pixel and radius is written below (torch::empty: no zero fill of [C,H,W,..])
   auto feat_img = torch::empty({C, H, W, D}, opt);
@@ -901,14 +932,14 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
   const double groups_s = omp_get_wtime() - tc;
   // One camera: project, bin, sort, blend. Its inner parallel loops run serially when called from
   // the camera-parallel region below (nested parallelism is off), in parallel otherwise.
-  auto one = [&](int64_t c, Projected<S>& P, Visible& vis) {
+  auto one = [&](int64_t c, Projected<S>& P, Visible& vis, Bins<S>* kept_bins) {
     Stats& sc = per[c];
     double t0 = omp_get_wtime();
     project_camera<S>(groups, cams[c], st, P, vis);
     write_radii(groups, vis, P, radii.data_ptr<int32_t>() + c * N);
     sc.project += omp_get_wtime() - t0;
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
-    const Bins<S> B = bin_and_sort(P, groups, vis, f, int(D), st, sc);
+    Bins<S> B = bin_and_sort(P, groups, vis, f, int(D), st, sc);
     const int64_t HW = H * W;
     FwdOut<S> out{feat_img.data_ptr<S>() + c * HW * D, alpha.data_ptr<S>() + c * HW,
                   fl.normal ? normal.data_ptr<S>() + c * HW * 3 : nullptr,
@@ -928,6 +959,7 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
     sc.blend += omp_get_wtime() - t0;
     sc.evals += evals;
     sc.blends += blends;
+    if (kept_bins) *kept_bins = std::move(B);
   };
   // Many cameras (view selection): a whole camera per thread, so no per-camera fork/join; each
   // camera's result is computed by the same code either way, so batched == single calls exactly.
@@ -938,12 +970,15 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
       Projected<S> P(N);
       Visible vis;
 #pragma omp for schedule(dynamic, 1)
-      for (int64_t c = 0; c < C; ++c) one(c, P, vis);
+      for (int64_t c = 0; c < C; ++c) one(c, P, vis, nullptr);
     }
   } else {
     Projected<S> P(N);
     Visible vis;
-    for (int64_t c = 0; c < C; ++c) one(c, P, vis);
+    Bins<S> B;
+    for (int64_t c = 0; c < C; ++c) one(c, P, vis, keep ? &B : nullptr);
+    if (keep)
+      cache->get<S>().reset(new KeptCamera<S>{std::move(P), std::move(B), N, D, W, H, near, far, cams[0]});
   }
   g_stats = Stats();
   g_stats.by_camera = by_camera;
@@ -1326,7 +1361,7 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
                                          torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
                                          double near, double far, const Flags& fl,
                                          std::vector<torch::Tensor> fwd, std::vector<torch::Tensor> grads,
-                                         bool fisher) {
+                                         bool fisher, RenderCache* cache) {
   const int64_t N = means.size(0), C = viewmats.size(0), D = feats.size(2);
   const bool shared = feats.size(0) == 1 && C > 1;
   auto opt = means.options();
@@ -1340,22 +1375,37 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
   const int G = fisher ? NSYM + 2 : NG + 4 + int(D);
   const int64_t HW = H * W;
   const bool dz = fl.depth || fl.dist;
-  Projected<S> P(N);
+  // The forward's projection and bins of a single camera when it kept them (RenderCache): the
+  // same values the lines below would compute from the same inputs.
+  const KeptCamera<S>* kept = nullptr;
+  if (cache && cache->get<S>() && C == 1) {
+    kept = cache->get<S>().get();
+    TORCH_CHECK(kept->fits(N, D, W, H, near, far, camera_of(viewmats, Ks, 0)),
+                "rasterizer backward: the kept forward state does not match these inputs");
+  }
+  Projected<S> own(kept ? 0 : N);
+  const Projected<S>& P = kept ? kept->P : own;
   g_stats = Stats();
   const double tc = omp_get_wtime();
   // Groups in id order, without culling: the chain rule below runs over all splat ids and their
   // rects. (The backward serves the mapper, whose few cameras each see much of the map.)
-  const SplatGroups<S> groups = group_splats(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(),
-                                             n.data_ptr<S>(), opac.data_ptr<S>(), N, false);
+  const SplatGroups<S> groups = kept ? SplatGroups<S>()
+                                     : group_splats(means.data_ptr<S>(), U.data_ptr<S>(), V.data_ptr<S>(),
+                                                    n.data_ptr<S>(), opac.data_ptr<S>(), N, false);
   g_stats.project += omp_get_wtime() - tc;
   Visible vis;
+  Bins<S> fresh;
   for (int64_t c = 0; c < C; ++c) {
     const Camera cam = camera_of(viewmats, Ks, c);
-    double t0 = omp_get_wtime();
-    project_camera<S>(groups, cam, st, P, vis);
-    g_stats.project += omp_get_wtime() - t0;
-    const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
-    const Bins<S> B = bin_and_sort(P, groups, vis, f, int(D), st, g_stats);
+    if (!kept) {
+      const double t0 = omp_get_wtime();
+      project_camera<S>(groups, cam, st, own, vis);
+      g_stats.project += omp_get_wtime() - t0;
+      const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
+      fresh = bin_and_sort(own, groups, vis, f, int(D), st, g_stats);
+    }
+    const Bins<S>& B = kept ? kept->B : fresh;
+    if (kept) g_stats.isects += int64_t(B.ids.size());
     auto ptr = [&](const torch::Tensor& t, int64_t per) -> const S* {
       return t.numel() ? t.data_ptr<S>() + c * HW * per : nullptr;
     };
@@ -1365,7 +1415,7 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
                 ptr(grads[0], D), ptr(grads[1], 1), fl.normal ? ptr(grads[2], 3) : nullptr,
                 dz ? ptr(grads[3], 1) : nullptr, dz ? ptr(grads[4], 1) : nullptr,
                 dz ? ptr(grads[5], 1) : nullptr, ptr(grads[6], 1)};
-    t0 = omp_get_wtime();
+    double t0 = omp_get_wtime();
     std::vector<S> slots(B.ids.size() * size_t(G), S(0));
 #pragma omp parallel for schedule(dynamic, 1)
     for (int t = 0; t < tiles; ++t) {
@@ -1434,11 +1484,11 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
 std::vector<torch::Tensor> forward(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,
                                    torch::Tensor opac, torch::Tensor feats, torch::Tensor viewmats,
                                    torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
-                                   bool normal, bool depth, bool dist, bool track) {
+                                   bool normal, bool depth, bool dist, bool track, RenderCache* cache) {
   const Flags fl{normal, depth, dist, track || normal || depth || dist};
   if (means.scalar_type() == torch::kFloat64)
-    return forward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl);
-  return forward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl);
+    return forward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, cache);
+  return forward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, cache);
 }
 
 std::vector<torch::Tensor> backward(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,
@@ -1446,18 +1496,36 @@ std::vector<torch::Tensor> backward(torch::Tensor means, torch::Tensor U, torch:
                                     torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
                                     bool normal, bool depth, bool dist,
                                     std::vector<torch::Tensor> fwd, std::vector<torch::Tensor> grads,
-                                    bool fisher) {
+                                    bool fisher, RenderCache* cache) {
   const Flags fl{normal, depth, dist, true};
   if (means.scalar_type() == torch::kFloat64)
-    return backward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher);
-  return backward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher);
+    return backward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher,
+                                 cache);
+  return backward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher,
+                              cache);
 }
 
 }  // namespace
 
 PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  namespace py = pybind11;
+  py::class_<RenderCache>(m, "RenderCache", "a single camera's projection and bins, kept by forward for backward")
+      .def(py::init<>());
+  // the last argument, a RenderCache or None, is optional: forward fills it, backward reads it
   m.def("forward", &forward, "2DGS forward for C cameras");
+  m.def("forward", [](torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n, torch::Tensor opac,
+                      torch::Tensor feats, torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
+                      double near, double far, bool normal, bool depth, bool dist, bool track) {
+    return forward(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, normal, depth, dist, track, nullptr);
+  });
   m.def("backward", &backward, "2DGS backward (or FisherRF squared contributions) for C cameras");
+  m.def("backward", [](torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n, torch::Tensor opac,
+                       torch::Tensor feats, torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
+                       double near, double far, bool normal, bool depth, bool dist, std::vector<torch::Tensor> fwd,
+                       std::vector<torch::Tensor> grads, bool fisher) {
+    return backward(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, normal, depth, dist, fwd, grads,
+                    fisher, nullptr);
+  });
   m.def("num_threads", []() { return omp_get_max_threads(); });
   m.def("last_stats", []() {
     return std::map<std::string, double>{

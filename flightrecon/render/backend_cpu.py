@@ -29,7 +29,10 @@ class RasterizeCPU(torch.autograd.Function):
         dt = means.dtype
         args = [_prep(t, dt) for t in (means, U, V, n, opac, feats)]
         cams = (viewmats.detach().double().contiguous(), Ks.detach().double().contiguous())
-        outs = load().forward(*args, *cams, width, height, near, far, normal, depth, dist, track)
+        ext = load()
+        # a single camera's projection and bins, kept for the backward (which would redo them)
+        ctx.cache = ext.RenderCache() if track and any(ctx.needs_input_grad[:6]) else None
+        outs = ext.forward(*args, *cams, width, height, near, far, normal, depth, dist, track, ctx.cache)
         ctx.save_for_backward(*args, *cams, *outs[:9])
         ctx.meta = (width, height, near, far, normal, depth, dist)
         ctx.mark_non_differentiable(*outs[7:])
@@ -42,7 +45,8 @@ class RasterizeCPU(torch.autograd.Function):
         grads = [g.contiguous() if g is not None else torch.zeros_like(o)
                  for g, o in zip((gF, gA, gN, gZ, gM, gM2, gMed), fwd[:7])]
         kept = fwd[:6] + fwd[7:9]  # the kernel re-derives everything else; median is not needed
-        g = load().backward(*args, *cams, *ctx.meta, kept, grads, False)
+        g = load().backward(*args, *cams, *ctx.meta, kept, grads, False, ctx.cache)
+        ctx.cache = None  # free it now; a second backward (retain_graph) recomputes
         return (*g, None, None, None, None, None, None, None, None, None, None)
 
 
