@@ -153,8 +153,10 @@ class OnlineMapper:
         Only splats the camera can see get gradient and updates, and the rest stay fixed during the
         call, so one conservative frustum test at the start picks every splat that could touch the
         image in any iteration; the iterations train a gathered copy of those rows (in id order, so
-        the rasterizer's depth ties break alike) and write it back once. Renders, gradients and
-        updates equal a full-map run's, at a per-iteration cost that scales with the view."""
+        the rasterizer's depth ties break alike) and write it back once, so the per-iteration cost
+        scales with the view instead of the map. Renders, gradients and updates are a full-map run's
+        but for last-bit rounding: torch computes the last few elements of an elementwise op (the
+        sigmoid) with its scalar formula, so a splat's rounding can depend on its position."""
         if iters <= 0 or len(self.map) == 0:
             return
         target = self._target(frame)
