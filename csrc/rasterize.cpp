@@ -1318,21 +1318,22 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
   }
 }
 
-// Sums each splat's slots in tile order into per-splat rows [N, G] (parallel over splats).
+// Sums each record's (binned splat's) slots in tile order into rows [records, G] (parallel over
+// records): only binned splats have slots, so the rows leave out the rest of the map.
 template <typename S>
-std::vector<S> reduce_slots(const Bins<S>& B, int64_t N, int G, const std::vector<S>& slots) {
-  const int64_t nis = int64_t(B.ids.size());
-  std::vector<int64_t> start(N + 1, 0);
-  for (int64_t e = 0; e < nis; ++e) ++start[B.splat[B.ids[e]] + 1];
-  for (int64_t i = 0; i < N; ++i) start[i + 1] += start[i];
+std::vector<S> reduce_slots(const Bins<S>& B, int G, const std::vector<S>& slots) {
+  const int64_t nis = int64_t(B.ids.size()), nrec = int64_t(B.splat.size());
+  std::vector<int64_t> start(nrec + 1, 0);
+  for (int64_t e = 0; e < nis; ++e) ++start[B.ids[e] + 1];
+  for (int64_t r = 0; r < nrec; ++r) start[r + 1] += start[r];
   std::vector<int64_t> order(nis), fill(start.begin(), start.end() - 1);
-  for (int64_t e = 0; e < nis; ++e) order[fill[B.splat[B.ids[e]]]++] = e;  // in tile order per splat
-  std::vector<S> rows(size_t(N) * G, S(0));
+  for (int64_t e = 0; e < nis; ++e) order[fill[B.ids[e]]++] = e;  // in tile order per record
+  std::vector<S> rows(size_t(nrec) * G, S(0));
 #pragma omp parallel for schedule(static)
-  for (int64_t i = 0; i < N; ++i)
-    for (int64_t k = start[i]; k < start[i + 1]; ++k) {
+  for (int64_t r = 0; r < nrec; ++r)
+    for (int64_t k = start[r]; k < start[r + 1]; ++k) {
       const S* src = &slots[size_t(order[k]) * G];
-      S* dst = &rows[size_t(i) * G];
+      S* dst = &rows[size_t(r) * G];
       for (int g = 0; g < G; ++g) dst[g] += src[g];
     }
   return rows;
@@ -1424,7 +1425,8 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
     }
     g_stats.blend += omp_get_wtime() - t0;
     t0 = omp_get_wtime();
-    const std::vector<S> rows = reduce_slots(B, N, G, slots);
+    const std::vector<S> rows = reduce_slots(B, G, slots);
+    const int64_t nrec = int64_t(B.splat.size());
     g_stats.reduce += omp_get_wtime() - t0;
     t0 = omp_get_wtime();
     if (fisher) {
@@ -1432,10 +1434,11 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
       S* fo = fis_o.data_ptr<S>() + c * N;
       S* fw = fis_w.data_ptr<S>() + c * N;
 #pragma omp parallel for schedule(static)
-      for (int64_t i = 0; i < N; ++i) {
-        for (int e = 0; e < NSYM; ++e) fg[i * NSYM + e] = rows[size_t(i) * G + e];
-        fo[i] = rows[size_t(i) * G + NSYM];
-        fw[i] = rows[size_t(i) * G + NSYM + 1];
+      for (int64_t r = 0; r < nrec; ++r) {
+        const int64_t i = B.splat[r];
+        for (int e = 0; e < NSYM; ++e) fg[i * NSYM + e] = rows[size_t(r) * G + e];
+        fo[i] = rows[size_t(r) * G + NSYM];
+        fw[i] = rows[size_t(r) * G + NSYM + 1];
       }
       g_stats.chain += omp_get_wtime() - t0;
       continue;
@@ -1443,12 +1446,15 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
     S *gm = g_means.data_ptr<S>(), *gu = g_U.data_ptr<S>(), *gv = g_V.data_ptr<S>();
     S *gn = g_n.data_ptr<S>(), *go = g_op.data_ptr<S>();
     S* gf = g_feat.data_ptr<S>() + (shared ? 0 : c * N * D);
-    // splat i is at position i (groups in id order, no culling: every rect is this camera's)
+    // splat i is at position i (groups in id order, no culling: every rect is this camera's); a
+    // splat with a rect is binned, and its row is its record's
+    std::unique_ptr<int32_t[]> rec_of(new int32_t[size_t(N)]);
+    for (int64_t r = 0; r < nrec; ++r) rec_of[B.splat[r]] = int32_t(r);
 #pragma omp parallel for schedule(static)
     for (int64_t i = 0; i < N; ++i) {
       const int* r = &P.rect[4 * i];
       if (r[0] > r[2] || r[1] > r[3]) continue;
-      const S* row = &rows[size_t(i) * G];
+      const S* row = &rows[size_t(rec_of[i]) * G];
       S gM[9];
       geometric_to_M(&P.M[9 * i], row, P.m2d[2 * i], P.m2d[2 * i + 1], gM);
       // M = K [U_c V_c p_c]  ->  d cols = K^T dM; columns are U_c, V_c, p_c.
