@@ -14,6 +14,7 @@ import sys
 
 from flightrecon import commands
 from flightrecon.errors import FlightReconError
+from flightrecon.memory import keep_freed_memory
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -28,6 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    keep_freed_memory()
     if not getattr(args, "func", None):
         parser.print_help()
         return 1
