@@ -1517,21 +1517,9 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   namespace py = pybind11;
   py::class_<RenderCache>(m, "RenderCache", "a single camera's projection and bins, kept by forward for backward")
       .def(py::init<>());
-  // the last argument, a RenderCache or None, is optional: forward fills it, backward reads it
+  // the last argument is a RenderCache or None: forward fills it, backward reads it
   m.def("forward", &forward, "2DGS forward for C cameras");
-  m.def("forward", [](torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n, torch::Tensor opac,
-                      torch::Tensor feats, torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
-                      double near, double far, bool normal, bool depth, bool dist, bool track) {
-    return forward(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, normal, depth, dist, track, nullptr);
-  });
   m.def("backward", &backward, "2DGS backward (or FisherRF squared contributions) for C cameras");
-  m.def("backward", [](torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n, torch::Tensor opac,
-                       torch::Tensor feats, torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
-                       double near, double far, bool normal, bool depth, bool dist, std::vector<torch::Tensor> fwd,
-                       std::vector<torch::Tensor> grads, bool fisher) {
-    return backward(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, normal, depth, dist, fwd, grads,
-                    fisher, nullptr);
-  });
   m.def("num_threads", []() { return omp_get_max_threads(); });
   m.def("last_stats", []() {
     return std::map<std::string, double>{

@@ -102,11 +102,11 @@ def render_fisher_diag(means: Tensor, quats: Tensor, log_scales: Tensor, opacity
         cams = (viewmats.double().contiguous(), Ks.double().contiguous())
         geo = [t.to(dt).contiguous() for t in (means, U, V, n, opac)]
         ext = load()
-        fwd = ext.forward(*geo, feats, *cams, width, height, near, far, False, False, False, True)
+        fwd = ext.forward(*geo, feats, *cams, width, height, near, far, False, False, False, True, None)
         grads = [torch.ones_like(fwd[0])] + [torch.zeros_like(t) for t in fwd[1:7]]
         kept = fwd[:6] + fwd[7:9]
         G_sym, o2, w2 = ext.backward(*geo, feats, *cams, width, height, near, far,
-                                     False, False, False, kept, grads, True)
+                                     False, False, False, kept, grads, True, None)
         C, N = G_sym.shape[:2]
         # G's diagonal holds sums of squares: a pair with any nonzero entry has a positive diagonal.
         flat = G_sym.reshape(C * N, G_sym.shape[-1])
