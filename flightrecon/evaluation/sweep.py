@@ -17,6 +17,7 @@ from pathlib import Path
 
 from flightrecon.config import load_config
 from flightrecon.errors import FlightReconError
+from flightrecon.memory import keep_freed_memory
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,11 @@ def status(spec: RunSpec) -> str:
 
 
 def run_one(spec: RunSpec, threads: int = 0) -> tuple[str, str]:
-    """Bring one run to 'done'; returns (run folder, what was done)."""
+    """Bring one run to 'done'; returns (run folder, what was done).
+
+    Pool and ray workers start here, not in the CLI, so the malloc tuning the CLI applies to its
+    own process is applied here too."""
+    keep_freed_memory()
     if threads > 0:
         import torch
 
