@@ -16,6 +16,8 @@
 // tile order; cameras are reduced in camera order.
 
 #include <torch/extension.h>
+
+#include "bindings.h"
 #include <omp.h>
 #if defined(__AVX2__) && defined(__FMA__)
 #include <immintrin.h>
@@ -1513,7 +1515,7 @@ std::vector<torch::Tensor> backward(torch::Tensor means, torch::Tensor U, torch:
 
 }  // namespace
 
-PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+void bind_rasterizer(pybind11::module_& m) {
   namespace py = pybind11;
   py::class_<RenderCache>(m, "RenderCache", "a single camera's projection and bins, kept by forward for backward")
       .def(py::init<>());

@@ -15,7 +15,9 @@ from pathlib import Path
 
 from flightrecon.errors import FlightReconError
 
-SOURCES = [Path(__file__).resolve().parents[2] / "csrc" / "rasterize.cpp"]
+CSRC = Path(__file__).resolve().parents[2] / "csrc"
+SOURCES = [CSRC / name for name in ("module.cpp", "rasterize.cpp")]
+HEADERS = [CSRC / "bindings.h"]
 CFLAGS = ["-O3", "-march=native", "-ffast-math", "-fopenmp", "-std=c++17"]
 
 
@@ -26,7 +28,7 @@ def cache_dir() -> Path:
 
 def source_hash() -> str:
     h = hashlib.sha256()
-    for src in SOURCES:
+    for src in SOURCES + HEADERS:
         h.update(src.read_bytes())
     h.update(" ".join(CFLAGS).encode())
     import torch
@@ -35,7 +37,7 @@ def source_hash() -> str:
 
 
 def _check_toolchain() -> None:
-    missing = [s for s in SOURCES if not s.is_file()]
+    missing = [s for s in SOURCES + HEADERS if not s.is_file()]
     if missing:
         raise FlightReconError(f"C++ rasterizer source missing: {missing[0]}")
     cxx = os.environ.get("CXX", "c++")

@@ -1,0 +1,6 @@
+// Each source file of the extension adds its functions to the one Python module (module.cpp).
+#pragma once
+
+#include <torch/extension.h>
+
+void bind_rasterizer(pybind11::module_& m);

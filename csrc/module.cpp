@@ -1,0 +1,6 @@
+// The extension's Python module: the functions of every source file in csrc/.
+#include "bindings.h"
+
+PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
+  bind_rasterizer(m);
+}
