@@ -4,3 +4,5 @@
 #include <torch/extension.h>
 
 void bind_rasterizer(pybind11::module_& m);
+void bind_splat_axes(pybind11::module_& m);
+void bind_optimizer(pybind11::module_& m);
