@@ -13,7 +13,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from flightrecon.config import MapperConfig
 from flightrecon.geometry import pixel_rays
@@ -182,7 +181,7 @@ class OnlineMapper:
     # -- queries --------------------------------------------------------------------------------
     def _render(self, p: dict[str, torch.Tensor], viewmats: torch.Tensor, Ks: torch.Tensor, W: int, H: int,
                 outputs: tuple[str, ...]):
-        return render(p["means"], F.normalize(p["quats"], dim=-1), p["log_scales"], p["opacity_logits"],
+        return render(p["means"], p["quats"], p["log_scales"], p["opacity_logits"],
                       p["colors"], viewmats, Ks, W, H, near=self.near, far=self.far, outputs=outputs,
                       backend=self.cfg.backend)
 

@@ -76,7 +76,8 @@ def render(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Ten
     """Render N 2DGS splats into C cameras (viewmats world-to-camera, OpenCV axes).
 
     Differentiable w.r.t. means, quats, log_scales, opacity_logits and features ([N,D] shared by
-    all cameras or [C,N,D] per camera). Pixel centers are at (i + 0.5, j + 0.5).
+    all cameras or [C,N,D] per camera). Pixel centers are at (i + 0.5, j + 0.5). Quaternions (w, x,
+    y, z) need not be unit: every backend normalizes them.
     """
     outputs = tuple(outputs)
     check_inputs(means, quats, log_scales, opacity_logits, features, viewmats, Ks, width, height,
