@@ -8,6 +8,7 @@ import torch
 
 from flightrecon.errors import DataError, FlightReconError
 from flightrecon.render import FisherDiag, render, render_fisher_diag
+from flightrecon.render.backend_cpu import splat_axes_cpu
 from flightrecon.render.fisher import screen_jacobian
 from flightrecon.render.projection import CUTOFF, project, splat_axes
 from flightrecon.render.reference import render_reference
@@ -108,6 +109,29 @@ def test_cpu_gradcheck_float64():
 
     inputs = [t.clone().requires_grad_(True) for t in (means, quats, ls, op, feats)]
     assert torch.autograd.gradcheck(fn, inputs, eps=1e-6, atol=1e-5, rtol=1e-4, fast_mode=True)
+
+
+def test_cpu_splat_axes_match_the_torch_statement():
+    """The C++ axes equal projection.splat_axes (values and autograd gradients) for quaternions of
+    any norm, a zero one included, and pass a float64 gradcheck."""
+    _, quats, ls, _, _ = make_scene(257, seed=4, dtype=torch.float64)
+    quats = quats * torch.linspace(0.01, 30.0, 257, dtype=torch.float64)[:, None]
+    quats[0] = 0.0
+    weights = [torch.randn(257, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(k)) for k in range(3)]
+    grads = {}
+    for name, fn in (("torch", splat_axes), ("cpu", splat_axes_cpu)):
+        q, s = quats.clone().requires_grad_(True), ls.clone().requires_grad_(True)
+        axes = fn(q, s)
+        sum(((a * w).sum() for a, w in zip(axes, weights))).backward()
+        grads[name] = [*(a.detach() for a in axes), q.grad, s.grad]
+    for name, x, y in zip(("U", "V", "n", "quats", "log_scales"), grads["torch"], grads["cpu"]):
+        assert torch.isfinite(y).all(), name
+        torch.testing.assert_close(y, x, rtol=1e-12, atol=1e-12, msg=name)
+    q32, s32 = quats.float(), ls.float()
+    for x, y in zip(splat_axes(q32, s32), splat_axes_cpu(q32, s32)):
+        torch.testing.assert_close(y, x, rtol=1e-6, atol=1e-6)
+    inputs = [quats[1:9].clone().requires_grad_(True), ls[1:9].clone().requires_grad_(True)]
+    assert torch.autograd.gradcheck(splat_axes_cpu, inputs, eps=1e-6, atol=1e-7)
 
 
 def test_feature_gradient_is_per_splat_pixel_sum_of_weights():
