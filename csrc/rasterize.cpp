@@ -239,12 +239,18 @@ void gather_splat(SplatGroups<S>& g, int64_t s, const S* means, const S* U, cons
   out[12 * N + s] = opac[i];
 }
 
+// Radius of a splat's bounding sphere around its mean: holds the cutoff ellipse (and the center).
+template <typename S>
+inline S sphere_radius(const S* u, const S* v) {
+  return S(CUTOFF * 1.01) * std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+}
+
 // The camera-independent values of the splat at position s.
 template <typename S>
 void splat_consts(SplatGroups<S>& g, int64_t s) {
   const S* u = g.U + 3 * s;
   const S* v = g.V + 3 * s;
-  g.rad[s] = S(CUTOFF * 1.01) * std::sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2] + v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+  g.rad[s] = sphere_radius(u, v);
   // alpha = o exp(-rho / 2) reaches ALPHA_MIN only where rho <= 2 ln(o / ALPHA_MIN) (plus a
   // margin for float error); never more than the fixed CUTOFF, which is the o = 1 case
   const double rho_max = std::min(2.0 * std::log(double(g.opac[s]) / ALPHA_MIN) + RHO_MARGIN, CUTOFF * CUTOFF);
@@ -344,27 +350,38 @@ inline bool group_outside(const double* sph, const Camera& cam, const Frustum& f
   return false;
 }
 
+template <typename S>
+inline void camera_point(const Camera& cam, const S* p, S* pc) {
+  for (int r = 0; r < 3; ++r) {
+    const double* Rr = cam.R + 3 * r;
+    pc[r] = S(Rr[0]) * p[0] + S(Rr[1]) * p[1] + S(Rr[2]) * p[2] + S(cam.t[r]);
+  }
+}
+
+// The first test of project_splat: the mean (camera frame pc) is not beyond the near plane, or the
+// bounding sphere lies wholly outside a widened frustum plane (pinhole K only); both by more than
+// `slack`, which candidate_rows sets to cover the float rounding of the test (the compiler may fuse
+// its multiply-adds differently there), so that it never drops a splat project_splat keeps.
+template <typename S>
+inline bool sphere_outside(const S* pc, S rad, const Frustum& fr, const Settings& st, S slack = S(0)) {
+  if (!fr.pinhole) return false;
+  bool out = !(pc[2] > S(st.near) - slack);
+  for (int k = 0; k < 4; ++k)
+    out = out || S(fr.planes[k][0]) * pc[k / 2] + S(fr.planes[k][1]) * pc[2] < -(rad + slack);
+  return out;
+}
+
 // Projects the splat at position s into P (same position); whether it touches the image (is
 // binned; else its rect stays empty, px0 > px1).
 template <typename S>
 bool project_splat(const SplatGroups<S>& G, int64_t s, const Camera& cam, const Frustum& fr,
                    const Settings& st, Projected<S>& P) {
-  const S* mean = &G.mean[3 * s];
   S pc[3], uc[3], vc[3], nc[3];
-  for (int r = 0; r < 3; ++r) {
-    const double* Rr = cam.R + 3 * r;
-    pc[r] = S(Rr[0]) * mean[0] + S(Rr[1]) * mean[1] + S(Rr[2]) * mean[2] + S(cam.t[r]);
-  }
+  camera_point(cam, &G.mean[3 * s], pc);
   int* rect = &P.rect[4 * s];
   rect[0] = 1; rect[2] = 0;
   P.radii[s] = 0;
-  if (fr.pinhole) {
-    const S rad = G.rad[s];
-    bool out = !(pc[2] > S(st.near));
-    for (int k = 0; k < 4; ++k)
-      out = out || S(fr.planes[k][0]) * pc[k / 2] + S(fr.planes[k][1]) * pc[2] < -rad;
-    if (out) return false;
-  }
+  if (sphere_outside(pc, G.rad[s], fr, st)) return false;
   const S *U = &G.U[3 * s], *V = &G.V[3 * s], *n = &G.n[3 * s];
   for (int r = 0; r < 3; ++r) {
     const double* Rr = cam.R + 3 * r;
@@ -1489,6 +1506,48 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
 }
 
 
+// Increasing indices of the splats that pass project_splat's first test for one camera (with a
+// float slack): every splat the camera can draw is among them. A caller that trains on one view (the mapper) works on
+// these rows alone: the others get no gradient, so they stay undrawn for as long as the view does.
+template <typename S>
+torch::Tensor candidate_rows_impl(const torch::Tensor& means, const torch::Tensor& U, const torch::Tensor& V,
+                                  const Camera& cam, const Settings& st) {
+  const int64_t N = means.size(0);
+  const Frustum fr = frustum_of(cam, st);
+  const S *m = means.data_ptr<S>(), *u = U.data_ptr<S>(), *v = V.data_ptr<S>();
+  const S tmag = S(std::fabs(cam.t[0]) + std::fabs(cam.t[1]) + std::fabs(cam.t[2]));
+  std::vector<uint8_t> keep(N);
+#pragma omp parallel for schedule(static)
+  for (int64_t i = 0; i < N; ++i) {
+    S pc[3];
+    camera_point(cam, m + 3 * i, pc);
+    const S* p = m + 3 * i;
+    const S slack = S(1e-5) * (S(1) + std::fabs(p[0]) + std::fabs(p[1]) + std::fabs(p[2]) + tmag);
+    keep[i] = !sphere_outside(pc, sphere_radius(u + 3 * i, v + 3 * i) * S(1 + 1e-5), fr, st, slack);
+  }
+  const int64_t count = std::accumulate(keep.begin(), keep.end(), int64_t(0));
+  auto rows = torch::empty({count}, torch::kInt64);
+  int64_t* r = rows.data_ptr<int64_t>();
+  for (int64_t i = 0; i < N; ++i)
+    if (keep[i]) *r++ = i;
+  return rows;
+}
+
+torch::Tensor candidate_rows(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor viewmat,
+                             torch::Tensor K, int64_t W, int64_t H, double near, double far) {
+  TORCH_CHECK(means.dim() == 2 && means.size(1) == 3 && U.sizes() == means.sizes() && V.sizes() == means.sizes(),
+              "means, U, V must be [N, 3]");
+  TORCH_CHECK(means.is_contiguous() && U.is_contiguous() && V.is_contiguous() &&
+              U.scalar_type() == means.scalar_type() && V.scalar_type() == means.scalar_type(),
+              "means, U, V must be contiguous and of one dtype");
+  TORCH_CHECK(viewmat.sizes() == torch::IntArrayRef({4, 4}) && K.sizes() == torch::IntArrayRef({3, 3}),
+              "one camera: viewmat [4, 4], K [3, 3]");
+  const Camera cam = camera_of(viewmat.unsqueeze(0), K.unsqueeze(0), 0);
+  const Settings st = settings_of(W, H, near, far);
+  if (means.scalar_type() == torch::kFloat64) return candidate_rows_impl<double>(means, U, V, cam, st);
+  return candidate_rows_impl<float>(means, U, V, cam, st);
+}
+
 std::vector<torch::Tensor> forward(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,
                                    torch::Tensor opac, torch::Tensor feats, torch::Tensor viewmats,
                                    torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
@@ -1522,6 +1581,7 @@ void bind_rasterizer(pybind11::module_& m) {
   // the last argument is a RenderCache or None: forward fills it, backward reads it
   m.def("forward", &forward, "2DGS forward for C cameras");
   m.def("backward", &backward, "2DGS backward (or FisherRF squared contributions) for C cameras");
+  m.def("candidate_rows", &candidate_rows, "indices of the splats one camera may draw (its frustum test)");
   m.def("num_threads", []() { return omp_get_max_threads(); });
   m.def("last_stats", []() {
     return std::map<std::string, double>{

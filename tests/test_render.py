@@ -8,7 +8,7 @@ import torch
 
 from flightrecon.errors import DataError, FlightReconError
 from flightrecon.render import FisherDiag, render, render_fisher_diag
-from flightrecon.render.backend_cpu import splat_axes_cpu
+from flightrecon.render.backend_cpu import candidate_rows, splat_axes_cpu
 from flightrecon.render.fisher import screen_jacobian
 from flightrecon.render.projection import CUTOFF, project, splat_axes
 from flightrecon.render.reference import render_reference
@@ -132,6 +132,28 @@ def test_cpu_splat_axes_match_the_torch_statement():
         torch.testing.assert_close(y, x, rtol=1e-6, atol=1e-6)
     inputs = [quats[1:9].clone().requires_grad_(True), ls[1:9].clone().requires_grad_(True)]
     assert torch.autograd.gradcheck(splat_axes_cpu, inputs, eps=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_candidate_rows_hold_every_drawn_splat(dtype):
+    """candidate_rows keeps every splat the camera draws (radii > 0), culls most of the others, and
+    rendering only its rows gives the full map's outputs; a skewed K keeps all rows."""
+    means, quats, ls, op, feats = make_scene(3000, seed=21, dtype=dtype, spread=2.5, depth=0.5, size=(0.01, 0.4))
+    vm, K = cameras(3, 48, 40, dtype)
+    for c in range(3):
+        rows = candidate_rows(means, quats, ls, vm[c], K[c], 48, 40, 0.05, 10.0)
+        full = render(means, quats, ls, op, feats, vm[c:c + 1], K[c:c + 1], 48, 40, outputs=ALL, backend="cpu")
+        drawn = torch.nonzero(full.radii[0] > 0, as_tuple=True)[0]
+        assert len(drawn) > 100 and len(rows) < 0.6 * len(means)
+        assert bool(torch.isin(drawn, rows).all()) and bool((rows[1:] > rows[:-1]).all())
+        sub = render(means[rows], quats[rows], ls[rows], op[rows], feats[rows], vm[c:c + 1], K[c:c + 1], 48, 40,
+                     outputs=ALL, backend="cpu")
+        assert torch.equal(sub.radii[0], full.radii[0][rows])
+        for k in ALL:  # to rounding: torch's sigmoid rounds a tensor's scalar tail its own way
+            torch.testing.assert_close(getattr(sub, k), getattr(full, k), rtol=1e-5, atol=1e-6, msg=k)
+    skew = K[0].clone()
+    skew[0, 1] = 0.5
+    assert len(candidate_rows(means, quats, ls, vm[0], skew, 48, 40, 0.05, 10.0)) == len(means)
 
 
 def test_feature_gradient_is_per_splat_pixel_sum_of_weights():

@@ -45,6 +45,22 @@ def splat_axes_cpu(quats: Tensor, log_scales: Tensor) -> tuple[Tensor, Tensor, T
     return SplatAxesCPU.apply(quats, log_scales)
 
 
+@torch.no_grad()
+def candidate_rows(means: Tensor, quats: Tensor, log_scales: Tensor, viewmat: Tensor, K: Tensor, width: int,
+                   height: int, near: float, far: float) -> Tensor:
+    """Increasing indices of every splat that the cpu backend could draw into one camera's image.
+
+    The kernel's own first culling test (each splat's bounding sphere against the frustum widened by
+    the low-pass reach, and its mean against the near plane) with a margin for float rounding, so
+    the rows hold every splat with radii > 0; a non-pinhole K keeps every splat. Rendering only
+    these rows (in this order) gives the full map's image exactly.
+    """
+    U, V, _ = splat_axes_cpu(quats, log_scales)
+    dt = means.dtype
+    return load().candidate_rows(_prep(means, dt), _prep(U, dt), _prep(V, dt), viewmat.detach().double(),
+                                 K.detach().double(), width, height, float(near), float(far))
+
+
 class RasterizeCPU(torch.autograd.Function):
     """(means, U, V, n, opacity, features[Cf,N,D]) -> raw per-pixel sums for C cameras."""
 
