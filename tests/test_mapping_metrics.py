@@ -59,3 +59,14 @@ def test_training_ssim_value_and_analytic_gradient():
     ta = torch.from_numpy(a).requires_grad_(True)
     assert abs(float(target(ta).detach()) - ref) < 1e-9
     assert torch.autograd.gradcheck(target, (ta,), eps=1e-6, atol=1e-8)
+
+
+def test_cpu_row_filter_equals_the_depthwise_convolution():
+    # Without autograd the CPU filter is the extension's; with it, torch's convolution: they agree.
+    from flightrecon.mapping.image_metrics import _blur
+
+    x = torch.rand(9, 37, 53, generator=torch.Generator().manual_seed(5))
+    fast = _blur(x, 1.5, 5)
+    conv = _blur(x.clone().requires_grad_(True), 1.5, 5).detach()
+    assert fast.shape == conv.shape == (9, 27, 43)
+    torch.testing.assert_close(fast, conv, rtol=1e-6, atol=1e-7)

@@ -16,7 +16,8 @@ from pathlib import Path
 from flightrecon.errors import FlightReconError
 
 CSRC = Path(__file__).resolve().parents[2] / "csrc"
-SOURCES = [CSRC / name for name in ("module.cpp", "rasterize.cpp", "splat_axes.cpp", "optimizer.cpp")]
+SOURCES = [CSRC / name for name in (
+    "module.cpp", "rasterize.cpp", "splat_axes.cpp", "optimizer.cpp", "image_ops.cpp")]
 HEADERS = [CSRC / "bindings.h"]
 CFLAGS = ["-O3", "-march=native", "-ffast-math", "-fopenmp", "-std=c++17"]
 
