@@ -153,9 +153,11 @@ class OnlineMapper:
         call, so one conservative frustum test at the start picks every splat that could touch the
         image in any iteration; the iterations train a gathered copy of those rows (in id order, so
         the rasterizer's depth ties break alike) and write it back once, so the per-iteration cost
-        scales with the view instead of the map. Renders, gradients and updates are a full-map run's
-        but for last-bit rounding: torch computes the last few elements of an elementwise op (the
-        sigmoid) with its scalar formula, so a splat's rounding can depend on its position."""
+        scales with the view instead of the map. Only the parameters are copied: the optimizer keeps
+        the moments in the map and updates them at `rows`. Renders, gradients and updates are a
+        full-map run's but for last-bit rounding: torch computes the last few elements of an
+        elementwise op (the sigmoid) with its scalar formula, so a splat's rounding can depend on
+        its position."""
         if iters <= 0 or len(self.map) == 0:
             return
         target = self._target(frame)
@@ -166,8 +168,7 @@ class OnlineMapper:
                             self.near, self.far)
         if len(rows) == 0:
             return
-        state = self.adam.gather(rows)
-        leaves = self.adam.leaves(state)
+        leaves = self.adam.gather(rows)
         for it in range(iters):
             out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS)
             loss = self._loss(out, target)
@@ -175,8 +176,8 @@ class OnlineMapper:
             visible = torch.nonzero(out.radii[0] > 0, as_tuple=True)[0]
             if count_observed and it == 0:
                 self.map["n_observed"][rows[visible]] += 1
-            self.adam.step(leaves, visible, state)
-        self.adam.scatter(rows, state)
+            self.adam.step(leaves, visible, rows)
+        self.adam.scatter(rows, leaves)
 
     # -- queries --------------------------------------------------------------------------------
     def _render(self, p: dict[str, torch.Tensor], viewmats: torch.Tensor, Ks: torch.Tensor, W: int, H: int,
