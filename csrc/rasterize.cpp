@@ -40,8 +40,9 @@
 namespace {
 
 constexpr int TS = 16;          // tile side
-constexpr int TP = TS * TS;     // pixels per tile
-constexpr int LANES = 8;        // column group: one AVX2 float vector; a splat visits only the groups its box covers
+constexpr int LANES = 8;        // column group: one AVX2 float vector; a splat's groups start at its box's first column
+constexpr int RS = TS + LANES;  // row stride of a tile's pixel arrays: a group from any column stays in its row
+constexpr int TP = TS * RS;     // pixel slots per tile; the LANES padding slots of a row never blend
 constexpr double ALPHA_MIN = 1.0 / 255.0;
 constexpr double ALPHA_MAX = 0.99;
 constexpr double T_MIN = 1e-4;
@@ -630,13 +631,17 @@ inline Hit<S> hit(const S* M, const Row<S>& r, S mx, S o, S x, S near) {
   return h;
 }
 
-// A record's pixel range in tile (tx, ty): rows as pixel offsets [p0, p1), column groups [g0, g1).
+// A record's pixel range in tile (tx, ty): rows as pixel offsets [p0, p1) (stride RS), columns
+// [c0, c1): whole groups from the box's first column, so a box up to LANES wide costs one group
+// wherever it lies (aligned groups cost two for every box straddling column 8). Columns past the
+// box, padding included, get alpha < ALPHA_MIN (the box bounds it) or are inactive: they never blend.
 struct Span {
-  int p0, p1, g0, g1;
+  int p0, p1, c0, c1;
 };
 inline Span span_of(const int* r, int tx, int ty) {
-  return Span{std::max(r[1] - ty * TS, 0) * TS, (std::min(r[3] - ty * TS, TS - 1) + 1) * TS,
-              std::max(r[0] - tx * TS, 0) / LANES, std::min(r[2] - tx * TS, TS - 1) / LANES + 1};
+  const int c0 = std::max(r[0] - tx * TS, 0), cl = std::min(r[2] - tx * TS, TS - 1);
+  return Span{std::max(r[1] - ty * TS, 0) * RS, (std::min(r[3] - ty * TS, TS - 1) + 1) * RS,
+              c0, c0 + (cl - c0 + LANES) / LANES * LANES};
 }
 
 struct Flags {
@@ -665,10 +670,10 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
   for (int r = 0; r < TS; ++r) row_alive[r] = ty * TS + r < st.H;
   std::vector<S> accF(size_t(D) * TP, S(0)), accN(fl.normal ? 3 * TP : 0, S(0));
   for (int p = 0; p < TP; ++p) {
-    const int x = tx * TS + (p % TS), y = ty * TS + p / TS;
+    const int x = tx * TS + (p % RS), y = ty * TS + p / RS;
     px[p] = S(x) + S(0.5);
     py[p] = S(y) + S(0.5);
-    act[p] = (x < st.W && y < st.H) ? S(1) : S(0);
+    act[p] = (p % RS < TS && x < st.W && y < st.H) ? S(1) : S(0);
     T[p] = S(1);
     accA[p] = accZ[p] = accM[p] = accM2[p] = medz[p] = w[p] = S(0);
     zz[p] = S(st.near);
@@ -715,20 +720,20 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
       const __m256 m6 = _mm256_set1_ps(M[6]), m7 = _mm256_set1_ps(M[7]), m8 = _mm256_set1_ps(M[8]);
       const __m256 vj = _mm256_castsi256_ps(_mm256_set1_epi32(j));
       const __m256 vj1 = _mm256_castsi256_ps(_mm256_set1_epi32(j + 1));
-      for (int p00 = sp.p0; p00 < sp.p1; p00 += TS) {
-        uint32_t& row_live = live[p00 / TS];
+      for (int p00 = sp.p0; p00 < sp.p1; p00 += RS) {
+        uint32_t& row_live = live[p00 / RS];
         if (row_live == 0) continue;  // every pixel of this row has terminated
         const Row<float> rw = row_of(M, py[p00], my);
         const RowVec rv = row_vec(rw);
-        for (int cg = sp.g0; cg < sp.g1; ++cg) {
-          if (((row_live >> (cg * LANES)) & 0xffu) == 0) continue;  // its 8 pixels have terminated
-          const int pg = p00 + cg * LANES;
+        for (int c = sp.c0; c < sp.c1; c += LANES) {
+          if (((row_live >> c) & 0xffu) == 0) continue;  // its 8 pixels have terminated
+          const int pg = p00 + c;
           evals += LANES;
-          const __m256 x = _mm256_load_ps(px + pg);
+          const __m256 x = _mm256_loadu_ps(px + pg);
           const Hit8 h = hit8(x, rv, vmx, m6, m7, m8);
           const __m256 nz = h.nz, z = h.z, g = h.g;
           const __m256 a = _mm256_min_ps(amax, _mm256_mul_ps(vo, g));
-          const __m256 Tp = _mm256_load_ps(T + pg), actp = _mm256_load_ps(act + pg);
+          const __m256 Tp = _mm256_loadu_ps(T + pg), actp = _mm256_loadu_ps(act + pg);
           const __m256 ok = _mm256_and_ps(
               _mm256_and_ps(nz, _mm256_cmp_ps(z, vnear, _CMP_GE_OQ)),
               _mm256_and_ps(_mm256_cmp_ps(a, amin, _CMP_GE_OQ), _mm256_cmp_ps(actp, zero, _CMP_NEQ_UQ)));
@@ -738,22 +743,22 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
           const int bm = _mm256_movemask_ps(blend), sm = _mm256_movemask_ps(stop);
           blends += __builtin_popcount(unsigned(bm));
           if (sm) {
-            _mm256_store_ps(act + pg, _mm256_andnot_ps(stop, actp));
-            row_live &= ~(uint32_t(sm) << (cg * LANES));
+            _mm256_storeu_ps(act + pg, _mm256_andnot_ps(stop, actp));
+            row_live &= ~(uint32_t(sm) << c);
             rows_alive -= row_live == 0;
           }
           if (!bm) continue;
           const __m256 wp = _mm256_and_ps(blend, _mm256_mul_ps(a, Tp));
           if constexpr (TRACK) {  // features-only calls (view selection) skip the depth bookkeeping
             const __m256 med = _mm256_and_ps(blend, _mm256_cmp_ps(Tp, half, _CMP_GT_OQ));
-            _mm256_store_ps(medz + pg, _mm256_blendv_ps(_mm256_load_ps(medz + pg), z, med));
+            _mm256_storeu_ps(medz + pg, _mm256_blendv_ps(_mm256_loadu_ps(medz + pg), z, med));
             float* mj = reinterpret_cast<float*>(medj + pg);
-            _mm256_store_ps(mj, _mm256_blendv_ps(_mm256_load_ps(mj), vj, med));
+            _mm256_storeu_ps(mj, _mm256_blendv_ps(_mm256_loadu_ps(mj), vj, med));
             float* lj = reinterpret_cast<float*>(last + pg);
-            _mm256_store_ps(lj, _mm256_blendv_ps(_mm256_load_ps(lj), vj1, blend));
+            _mm256_storeu_ps(lj, _mm256_blendv_ps(_mm256_loadu_ps(lj), vj1, blend));
           }
-          _mm256_store_ps(T + pg, _mm256_blendv_ps(Tp, testT, blend));
-          _mm256_store_ps(accA + pg, _mm256_add_ps(_mm256_load_ps(accA + pg), wp));
+          _mm256_storeu_ps(T + pg, _mm256_blendv_ps(Tp, testT, blend));
+          _mm256_storeu_ps(accA + pg, _mm256_add_ps(_mm256_loadu_ps(accA + pg), wp));
           for (int d = 0; d < D; ++d) {
             float* acc = &accF[size_t(d) * TP + pg];
             _mm256_storeu_ps(acc, _mm256_fmadd_ps(wp, _mm256_set1_ps(f[d]), _mm256_loadu_ps(acc)));
@@ -767,9 +772,9 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
             const __m256 zs = _mm256_blendv_ps(vnear, z, blend);
             const __m256 m = _mm256_mul_ps(vmscale, _mm256_sub_ps(one, _mm256_div_ps(vnear, zs)));
             const __m256 wm = _mm256_mul_ps(wp, m);
-            _mm256_store_ps(accZ + pg, _mm256_fmadd_ps(wp, zs, _mm256_load_ps(accZ + pg)));
-            _mm256_store_ps(accM + pg, _mm256_add_ps(_mm256_load_ps(accM + pg), wm));
-            _mm256_store_ps(accM2 + pg, _mm256_fmadd_ps(wm, m, _mm256_load_ps(accM2 + pg)));
+            _mm256_storeu_ps(accZ + pg, _mm256_fmadd_ps(wp, zs, _mm256_loadu_ps(accZ + pg)));
+            _mm256_storeu_ps(accM + pg, _mm256_add_ps(_mm256_loadu_ps(accM + pg), wm));
+            _mm256_storeu_ps(accM2 + pg, _mm256_fmadd_ps(wm, m, _mm256_loadu_ps(accM2 + pg)));
           }
         }
       }
@@ -788,15 +793,15 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
       const S* M = q;
       const S mx = q[9], my = q[10], o = q[11];
       const int32_t j = int32_t(jj - b0);
-      const int c0 = sp.g0 * LANES, c1 = sp.g1 * LANES;
+      const int c0 = sp.c0, c1 = sp.c1;
       int any = 0;
-      for (int p00 = p0; p00 < p1; p00 += TS) {
-      if (!row_alive[p00 / TS]) {  // every pixel of this row has terminated
-        for (int p = p00; p < p00 + TS; ++p) w[p] = S(0);
+      for (int p00 = p0; p00 < p1; p00 += RS) {
+      if (!row_alive[p00 / RS]) {  // every pixel of this row has terminated
+        for (int p = p00; p < p00 + RS; ++p) w[p] = S(0);
         continue;
       }
       const Row<S> rw = row_of(M, py[p00], my);
-      for (int p = p00; p < p00 + TS; ++p) w[p] = S(0);
+      for (int p = p00; p < p00 + RS; ++p) w[p] = S(0);
       evals += c1 - c0;
       for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
   #pragma omp simd reduction(| : any) reduction(+ : blends)
@@ -824,7 +829,7 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
       }
       S alive = 0;
       for (int p = p00; p < p00 + TS; ++p) alive += act[p];
-      row_alive[p00 / TS] = alive != 0;
+      row_alive[p00 / RS] = alive != 0;
       }
       if (!any) continue;
       for (int d = 0; d < D; ++d) {
@@ -852,8 +857,8 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
     }
   }
   for (int p = 0; p < TP; ++p) {
-    const int x = tx * TS + (p % TS), y = ty * TS + p / TS;
-    if (x >= st.W || y >= st.H) continue;
+    const int x = tx * TS + (p % RS), y = ty * TS + p / RS;
+    if (p % RS >= TS || x >= st.W || y >= st.H) continue;
     const int64_t q = int64_t(y) * st.W + x;
     for (int d = 0; d < D; ++d) out.feat[q * D + d] = accF[size_t(d) * TP + p];
     out.alpha[q] = accA[p];
@@ -1057,7 +1062,6 @@ void backward_splats_avx2(const Bins<float>& B, int D, const Flags& fl, int tx, 
     const float* M = q;
     const float mx = q[9], my = q[10], o = q[11];
     const float* f = q + REC;
-    const int c0 = sp.g0 * LANES, c1 = sp.g1 * LANES;
     const __m256 vmx = _mm256_set1_ps(mx), vo = _mm256_set1_ps(o);
     const __m256 m0 = _mm256_set1_ps(M[0]), m1 = _mm256_set1_ps(M[1]), m2 = _mm256_set1_ps(M[2]);
     const __m256 m6 = _mm256_set1_ps(M[6]), m7 = _mm256_set1_ps(M[7]), m8 = _mm256_set1_ps(M[8]);
@@ -1065,46 +1069,46 @@ void backward_splats_avx2(const Bins<float>& B, int D, const Flags& fl, int tx, 
     __m256 acc[NG], accO = zero, accN[3] = {zero, zero, zero}, accF[MAX_D_AVX2];
     for (int e = 0; e < NG; ++e) acc[e] = zero;
     for (int d = 0; d < D; ++d) accF[d] = zero;
-    for (int p00 = sp.p0; p00 < sp.p1; p00 += TS) {
-      if (j >= row_last[p00 / TS]) continue;  // no pixel of this row blends this splat or any later one
+    for (int p00 = sp.p0; p00 < sp.p1; p00 += RS) {
+      if (j >= row_last[p00 / RS]) continue;  // no pixel of this row blends this splat or any later one
       const Row<float> rw = row_of(M, py[p00], my);
       const RowVec rv = row_vec(rw);
       const __m256 l0 = _mm256_set1_ps(rw.l0), l1 = _mm256_set1_ps(rw.l1), l2 = _mm256_set1_ps(rw.l2);
       const __m256 y = _mm256_set1_ps(py[p00]);
       const __m256 dyc = _mm256_set1_ps(py[p00] - my);
-      for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
-        const __m256 x = _mm256_load_ps(px + pg);
+      for (int pg = p00 + sp.c0; pg < p00 + sp.c1; pg += LANES) {
+        const __m256 x = _mm256_loadu_ps(px + pg);
         const Hit8 h = hit8(x, rv, vmx, m6, m7, m8);
         const __m256 nz = h.nz, inv = h.inv, u = h.u, v = h.v, dx = h.dx, use3 = h.use3, z = h.z, g = h.g;
         const __m256 og = _mm256_mul_ps(vo, g);
         const __m256 ah = _mm256_min_ps(amax, og);
-        const __m256 lastp = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_load_si256(reinterpret_cast<const __m256i*>(last + pg)), vj));
+        const __m256 lastp = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(last + pg)), vj));
         const __m256 blend = _mm256_and_ps(
             _mm256_and_ps(nz, _mm256_cmp_ps(z, vnear, _CMP_GE_OQ)), _mm256_and_ps(_mm256_cmp_ps(ah, amin, _CMP_GE_OQ), lastp));
-        const __m256i medm = _mm256_cmpeq_epi32(_mm256_load_si256(reinterpret_cast<const __m256i*>(medj + pg)), vj);
+        const __m256i medm = _mm256_cmpeq_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(medj + pg)), vj);
         if (_mm256_movemask_ps(blend) == 0 && _mm256_testz_si256(medm, medm)) continue;  // all terms are 0
         const __m256 a = _mm256_and_ps(blend, ah);
         const __m256 zs = _mm256_blendv_ps(vnear, z, blend);
-        const __m256 Tp = _mm256_load_ps(T + pg);
+        const __m256 Tp = _mm256_loadu_ps(T + pg);
         const __m256 wp = _mm256_mul_ps(a, Tp);
-        __m256 sf = _mm256_load_ps(gA + pg);
+        __m256 sf = _mm256_loadu_ps(gA + pg);
         for (int d = 0; d < D; ++d) sf = _mm256_fmadd_ps(_mm256_set1_ps(f[d]), _mm256_loadu_ps(gF + size_t(d) * TP + pg), sf);
         if (fl.normal)
           for (int c = 0; c < 3; ++c) sf = _mm256_fmadd_ps(_mm256_set1_ps(q[12 + c]), _mm256_loadu_ps(gN + size_t(c) * TP + pg), sf);
-        __m256 dzv = _mm256_and_ps(_mm256_castsi256_ps(medm), _mm256_load_ps(gMed + pg));
+        __m256 dzv = _mm256_and_ps(_mm256_castsi256_ps(medm), _mm256_loadu_ps(gMed + pg));
         if (dz) {
           const __m256 m = _mm256_mul_ps(vmscale, _mm256_sub_ps(one, _mm256_div_ps(vnear, zs)));
           const __m256 dm = _mm256_div_ps(vmder, _mm256_mul_ps(zs, zs));
-          const __m256 gz = _mm256_load_ps(gZ + pg), gm = _mm256_load_ps(gM + pg), gm2 = _mm256_load_ps(gM2 + pg);
+          const __m256 gz = _mm256_loadu_ps(gZ + pg), gm = _mm256_loadu_ps(gM + pg), gm2 = _mm256_loadu_ps(gM2 + pg);
           sf = _mm256_fmadd_ps(gz, zs, sf);
           sf = _mm256_fmadd_ps(gm, m, sf);
           sf = _mm256_fmadd_ps(_mm256_mul_ps(gm2, m), m, sf);
           const __m256 inner = _mm256_fmadd_ps(_mm256_mul_ps(_mm256_mul_ps(gm2, two), m), dm, _mm256_fmadd_ps(gm, dm, gz));
           dzv = _mm256_fmadd_ps(wp, inner, dzv);
         }
-        const __m256 pre = _mm256_fmadd_ps(wp, sf, _mm256_load_ps(Pre + pg));
-        _mm256_store_ps(Pre + pg, pre);
-        const __m256 rest = _mm256_sub_ps(_mm256_load_ps(Tot + pg), pre);
+        const __m256 pre = _mm256_fmadd_ps(wp, sf, _mm256_loadu_ps(Pre + pg));
+        _mm256_storeu_ps(Pre + pg, pre);
+        const __m256 rest = _mm256_sub_ps(_mm256_loadu_ps(Tot + pg), pre);
         const __m256 dA = _mm256_sub_ps(_mm256_mul_ps(Tp, sf), _mm256_div_ps(rest, _mm256_sub_ps(one, a)));
         const __m256 free_a = _mm256_and_ps(blend, _mm256_cmp_ps(og, amax, _CMP_LT_OQ));
         const __m256 dOp = _mm256_and_ps(free_a, _mm256_mul_ps(dA, g));
@@ -1140,7 +1144,7 @@ void backward_splats_avx2(const Bins<float>& B, int D, const Flags& fl, int tx, 
         if (fl.normal)
           for (int c = 0; c < 3; ++c) accN[c] = _mm256_fmadd_ps(wp, _mm256_loadu_ps(gN + size_t(c) * TP + pg), accN[c]);
         for (int d = 0; d < D; ++d) accF[d] = _mm256_fmadd_ps(wp, _mm256_loadu_ps(gF + size_t(d) * TP + pg), accF[d]);
-        _mm256_store_ps(T + pg, _mm256_mul_ps(Tp, _mm256_sub_ps(one, a)));
+        _mm256_storeu_ps(T + pg, _mm256_mul_ps(Tp, _mm256_sub_ps(one, a)));
       }
     }
     for (int e = 0; e < NG; ++e) slot[e] = hsum8(acc[e]);
@@ -1165,7 +1169,7 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
   std::vector<S> gF(size_t(D) * TP, S(0)), gN(3 * TP, S(0));
   int maxlast = 0;
   for (int p = 0; p < TP; ++p) {
-    const int x = tx * TS + (p % TS), y = ty * TS + p / TS;
+    const int x = tx * TS + (p % RS), y = ty * TS + p / RS;
     px[p] = S(x) + S(0.5);
     py[p] = S(y) + S(0.5);
     T[p] = S(1);
@@ -1173,7 +1177,7 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
     gA[p] = gZ[p] = gM[p] = gM2[p] = gMed[p] = Tot[p] = S(0);
     last[p] = 0;
     medj[p] = -1;
-    if (x >= st.W || y >= st.H) continue;
+    if (p % RS >= TS || x >= st.W || y >= st.H) continue;
     const int64_t q = int64_t(y) * st.W + x;
     S tot = 0;
     for (int d = 0; d < D; ++d) {
@@ -1198,7 +1202,7 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
     maxlast = std::max(maxlast, last[p]);
   }
   int32_t row_last[TS];
-  for (int r = 0; r < TS; ++r) row_last[r] = *std::max_element(last + r * TS, last + (r + 1) * TS);
+  for (int r = 0; r < TS; ++r) row_last[r] = *std::max_element(last + r * RS, last + r * RS + TS);
   const S near = S(st.near), mscale = S(st.far / (st.far - st.near));
   const S mder = S(st.far * st.near / (st.far - st.near));
   const int64_t b0 = B.offsets[tile];
@@ -1222,7 +1226,7 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
     const S mx = q[9], my = q[10], o = q[11];
     const S* f = q + REC;
     const S* nr = q + 12;
-    const int c0 = sp.g0 * LANES, c1 = sp.g1 * LANES;
+    const int c0 = sp.c0, c1 = sp.c1;
 #pragma omp simd
     for (int p = p0; p < p1; ++p) s[p] = gA[p];
     for (int d = 0; d < D; ++d) {
@@ -1239,16 +1243,16 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
         for (int p = p0; p < p1; ++p) s[p] += nk * g[p];
       }
     S dO = 0, o2 = 0, w2 = 0;
-    for (int p00 = p0; p00 < p1; p00 += TS) {
-    if (j >= row_last[p00 / TS]) {  // no pixel of this row blends this splat or any later one
-      for (int p = p00; p < p00 + TS; ++p) {
+    for (int p00 = p0; p00 < p1; p00 += RS) {
+    if (j >= row_last[p00 / RS]) {  // no pixel of this row blends this splat or any later one
+      for (int p = p00; p < p00 + RS; ++p) {
         w[p] = S(0);
         for (int e = 0; e < NG; ++e) gg[e][p] = S(0);
       }
       continue;
     }
     const Row<S> rw = row_of(M, py[p00], my);
-    for (int p = p00; p < p00 + TS; ++p) {
+    for (int p = p00; p < p00 + RS; ++p) {
       w[p] = S(0);
       for (int e = 0; e < NG; ++e) gg[e][p] = S(0);
     }
