@@ -10,8 +10,7 @@ import torch
 from flightrecon.config import MapperConfig, load_config
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.image_metrics import depth_l1
-from flightrecon.mapping.mapper import TRAIN_OUTPUTS, OnlineMapper, frustum_rows, seed_share
-from flightrecon.render import render
+from flightrecon.mapping.mapper import TRAIN_OUTPUTS, OnlineMapper, seed_share
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world
@@ -127,8 +126,7 @@ def test_training_the_cameras_splats_equals_training_the_whole_map(views):
     subset.map.keep(keep)
     full = copy.deepcopy(subset)
     frame = subset.frames[0]
-    rows = frustum_rows(subset.map["means"], subset.map["log_scales"], frame.viewmat, frame.K, W, H,
-                        subset.near, subset.far)
+    rows = subset._view_rows(frame.viewmat, frame.K, W, H)
     assert torch.equal(rows, torch.arange(n0 // 32 * 32)) and len(rows) < len(subset.map)
     subset._optimize(frame, 5, count_observed=True)
 
@@ -145,21 +143,3 @@ def test_training_the_cameras_splats_equals_training_the_whole_map(views):
         assert torch.equal(subset.map[name], full.map[name]), name
     assert bool((subset.map["adam_step"] > 3).any())  # the 5 iterations did update splats
 
-
-def test_frustum_rows_keep_every_splat_the_rasterizer_draws():
-    g = torch.Generator().manual_seed(0)
-    N = 40000
-    means = torch.rand(N, 3, generator=g) * 8 - 4
-    quats = torch.randn(N, 4, generator=g)
-    log_scales = torch.rand(N, 2, generator=g) * 5 - 5  # 7 mm .. 1 m
-    opacity_logits = torch.randn(N, generator=g) * 3
-    colors = torch.rand(N, 3, generator=g)
-    K = torch.tensor([[80.0, 0.0, 47.0], [0.0, 80.0, 37.0], [0.0, 0.0, 1.0]])
-    for T in (camera_pose([0.0, 0.0, 0.0], 0.3, 10.0), camera_pose([1.0, -1.0, 0.5], 2.5, -30.0)):
-        viewmat = torch.as_tensor(np.linalg.inv(T), dtype=torch.float32)
-        out = render(means, quats, log_scales, opacity_logits, colors, viewmat[None], K[None], W, H,
-                     near=0.05, far=10.0, outputs=("alpha",), backend="cpu")
-        drawn = torch.nonzero(out.radii[0] > 0, as_tuple=True)[0]
-        rows = frustum_rows(means, log_scales, viewmat, K, W, H, 0.05, 10.0)
-        assert len(drawn) > 0 and len(rows) < N // 2
-        assert bool(torch.isin(drawn, rows).all())

@@ -23,7 +23,7 @@ from flightrecon.mapping.optimizer import SparseAdam
 from flightrecon.mapping.store import GaussianMap
 from flightrecon.mapping.voxel_hash import reject_near
 from flightrecon.render import render
-from flightrecon.render.projection import CUTOFF, FILTER_REACH
+from flightrecon.render.backend_cpu import candidate_rows
 
 log = logging.getLogger(__name__)
 
@@ -56,41 +56,6 @@ def default_device(backend: str) -> torch.device:
     if backend == "cuda" or (backend == "auto" and torch.cuda.is_available()):
         return torch.device("cuda")
     return torch.device("cpu")
-
-
-@torch.no_grad()
-def frustum_rows(means: torch.Tensor, log_scales: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor,
-                 width: int, height: int, near: float, far: float) -> torch.Tensor:
-    """Increasing indices of every splat that the rasterizer could draw into this camera's image.
-
-    The rasterizer draws a splat only if its mean's depth is in (near, far) and its box (the image of
-    its CUTOFF-sigma disk, widened around the projected center by the low-pass reach) meets the image.
-    The disk lies in the ball of radius CUTOFF |(U, V)| = CUTOFF sqrt(s_u^2 + s_v^2) around the mean,
-    so a ball wholly outside a frustum plane widened by that reach (the test of the rasterizer's own
-    group culling) rules the splat out. The radius and the plane offsets carry margins for the
-    float rounding of the rasterizer's per-splat test, so the test errs only towards keeping.
-    Cameras with a skewed or non-pinhole K keep every splat.
-    """
-    N = means.shape[0]
-    k = K.double()
-    if not (k[0, 1] == 0 and k[1, 0] == 0 and k[2, 0] == 0 and k[2, 1] == 0 and k[2, 2] == 1
-            and k[0, 0] > 0 and k[1, 1] > 0):
-        return torch.arange(N, device=means.device)
-    R, t = viewmat[:3, :3].double(), viewmat[:3, 3].double()
-    m = FILTER_REACH + 1.0
-    fx, fy, cx, cy = float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])
-    # camera-frame rows (on x, y, z): the four planes a * x_or_y + b * z >= 0 (unit normals), then z
-    A = torch.tensor([[fx, 0.0, cx + m], [-fx, 0.0, width + m - cx], [0.0, fy, cy + m],
-                      [0.0, -fy, height + m - cy]], dtype=torch.float64, device=means.device)
-    A = torch.cat([A / A.norm(dim=1, keepdim=True), A.new_tensor([[0.0, 0.0, 1.0]])])
-    d = torch.addmm((A @ t).to(means.dtype), means, (A @ R).T.to(means.dtype))  # [N, 5] in world terms
-    # float slack: the rasterizer's float test and this one each round by ~1e-7 of the magnitudes
-    slack = 1e-4 * (1.0 + 2.0 * (3.0 * float(means.abs().max()) + float(t.abs().sum())))
-    r = torch.exp(2.0 * log_scales).sum(-1).sqrt_().mul_(CUTOFF * 1.01 * (1.0 + 1e-4)).add_(slack)
-    keep = (d[:, :4] >= -r[:, None]).all(1)
-    z = d[:, 4]
-    keep &= (z > near - slack) & (z < far + slack)
-    return torch.nonzero(keep, as_tuple=True)[0]
 
 
 class OnlineMapper:
@@ -150,8 +115,8 @@ class OnlineMapper:
         """`iters` Adam iterations on one frame, on the splats that may reach its image.
 
         Only splats the camera can see get gradient and updates, and the rest stay fixed during the
-        call, so one conservative frustum test at the start picks every splat that could touch the
-        image in any iteration; the iterations train a gathered copy of those rows (in id order, so
+        call, so one conservative culling test at the start (_view_rows) picks every splat that could
+        touch the image in any iteration; the iterations train a gathered copy of those rows (in id order, so
         the rasterizer's depth ties break alike) and write it back once, so the per-iteration cost
         scales with the view instead of the map. Only the parameters are copied: the optimizer keeps
         the moments in the map and updates them at `rows`. Renders, gradients and updates are a
@@ -164,8 +129,7 @@ class OnlineMapper:
         H, W = target.depth.shape[:2]
         viewmat = frame.viewmat.to(self.device)[None]
         Ks = frame.K.to(self.device)[None]
-        rows = frustum_rows(self.map["means"], self.map["log_scales"], viewmat[0], Ks[0], W, H,
-                            self.near, self.far)
+        rows = self._view_rows(viewmat[0], Ks[0], W, H)
         if len(rows) == 0:
             return
         leaves = self.adam.gather(rows)
@@ -178,6 +142,14 @@ class OnlineMapper:
                 self.map["n_observed"][rows[visible]] += 1
             self.adam.step(leaves, visible, rows)
         self.adam.scatter(rows, leaves)
+
+    def _view_rows(self, viewmat: torch.Tensor, K: torch.Tensor, W: int, H: int) -> torch.Tensor:
+        """Increasing indices of the splats one camera may draw: the C++ kernel's own culling test on
+        a CPU map (cpu and reference backends), every splat on a GPU map."""
+        if self.device.type != "cpu":
+            return torch.arange(len(self.map), device=self.device)
+        return candidate_rows(self.map["means"], self.map["quats"], self.map["log_scales"], viewmat, K, W, H,
+                              self.near, self.far)
 
     # -- queries --------------------------------------------------------------------------------
     def _render(self, p: dict[str, torch.Tensor], viewmats: torch.Tensor, Ks: torch.Tensor, W: int, H: int,
