@@ -70,3 +70,31 @@ def test_cpu_row_filter_equals_the_depthwise_convolution():
     conv = _blur(x.clone().requires_grad_(True), 1.5, 5).detach()
     assert fast.shape == conv.shape == (9, 27, 43)
     torch.testing.assert_close(fast, conv, rtol=1e-6, atol=1e-7)
+
+
+def test_depth_normals_of_a_plane_and_against_the_torch_graph():
+    # A tilted plane z = 2 + 0.3 x seen by a pinhole camera: every interior normal is the plane's
+    # (facing the camera), the border is zero; the CPU kernel equals the torch graph (taken when the
+    # rays require grad) in value and depth gradient, and passes gradcheck.
+    from flightrecon.geometry import pixel_rays
+    from flightrecon.mapping.losses import normals_from_depth
+
+    H, W = 9, 12
+    K = np.array([[10.0, 0, 6.0], [0, 10.0, 4.5], [0, 0, 1]])
+    rays = torch.as_tensor(pixel_rays(W, H, K), dtype=torch.float64)
+    depth = 2.0 / (1.0 - 0.3 * rays[..., :1])  # z = 2 + 0.3 x along each ray
+    n = normals_from_depth(depth, rays)
+    expected = torch.tensor([0.3, 0.0, -1.0], dtype=torch.float64) / np.sqrt(1.09)
+    torch.testing.assert_close(n[1:-1, 1:-1], expected.expand(H - 2, W - 2, 3), rtol=0, atol=1e-12)
+    assert not n[0].any() and not n[:, -1].any()
+
+    g = torch.Generator().manual_seed(2)
+    d = (depth + 0.05 * torch.rand(2, H, W, 1, generator=g, dtype=torch.float64)).requires_grad_(True)
+    w = torch.randn(2, H, W, 3, generator=g, dtype=torch.float64)
+    fast = normals_from_depth(d, rays)
+    (gd_fast,) = torch.autograd.grad((fast * w).sum(), d)
+    slow = normals_from_depth(d, rays.clone().requires_grad_(True))
+    (gd_slow,) = torch.autograd.grad((slow * w).sum(), d)
+    torch.testing.assert_close(fast, slow, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(gd_fast, gd_slow, rtol=1e-10, atol=1e-12)
+    assert torch.autograd.gradcheck(lambda x: normals_from_depth(x, rays), (d[:1].detach().clone().requires_grad_(True),))

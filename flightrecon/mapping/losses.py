@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from flightrecon.mapping.image_metrics import SSIMTarget
+from flightrecon.render.extension import load
 
 ALPHA_MASK = 0.95
 
@@ -24,13 +25,35 @@ ALPHA_MASK = 0.95
 def normals_from_depth(depth: torch.Tensor, rays: torch.Tensor) -> torch.Tensor:
     """Camera-facing unit normals [..., H, W, 3] of the surface of z-depth [..., H, W, 1].
 
-    `rays` [H, W, 3] are the pixel directions with z = 1; the border pixels get zero normals.
+    `rays` [H, W, 3] are the pixel directions with z = 1; the border pixels get zero normals. The
+    normal at a pixel is that of the cross product of the central differences of the back-projected
+    points (vertical x horizontal). On the CPU one C++ pass each way (csrc/image_ops.cpp); the torch
+    graph of the same formula cost the mapper ~6.6 ms of CPU per iteration at 320x240.
     """
+    if depth.device.type == "cpu" and not rays.requires_grad:
+        dtype = torch.promote_types(depth.dtype, rays.dtype)
+        H, W = depth.shape[-3:-1]
+        d = depth.to(dtype).reshape(-1, H, W).contiguous()
+        return _DepthNormalsCPU.apply(d, rays.to(dtype).contiguous()).reshape(*depth.shape[:-1], 3)
     P = rays * depth
     dx = P[..., 1:-1, 2:, :] - P[..., 1:-1, :-2, :]
     dy = P[..., 2:, 1:-1, :] - P[..., :-2, 1:-1, :]
     n = F.normalize(torch.linalg.cross(dy, dx, dim=-1), dim=-1)
     return F.pad(n, (0, 0, 1, 1, 1, 1))
+
+
+class _DepthNormalsCPU(torch.autograd.Function):
+    """normals_from_depth of depth [B, H, W] on the CPU, differentiable in the depth."""
+
+    @staticmethod
+    def forward(ctx, depth, rays):
+        ctx.save_for_backward(depth, rays)
+        return load().depth_normals(depth, rays)
+
+    @staticmethod
+    def backward(ctx, grad):
+        depth, rays = ctx.saved_tensors
+        return load().depth_normals_backward(depth, rays, grad.contiguous()), None
 
 
 @dataclass
