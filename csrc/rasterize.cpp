@@ -8,8 +8,9 @@
 // index), list them per 16x16 tile in that order, then blend each tile (parallel over tiles), or
 // a whole camera per thread when there are many cameras. The blend loops run
 // splats outside and the tile's pixels inside, branch-free, so the compiler vectorizes them over
-// pixels; only the rows a splat's box covers are visited. A single camera's forward can keep its
-// projection and bins for the backward (RenderCache), which otherwise recomputes them.
+// pixels; only the pixel groups that a splat's box covers are visited (span_of). A single camera's
+// forward can keep its projection and bins for the backward (RenderCache), which otherwise
+// recomputes them.
 //
 // Determinism: every float sum has a fixed order independent of the thread count. The backward
 // writes each (tile, splat) pair's gradient into its own slot and reduces the slots per splat in
@@ -40,9 +41,9 @@
 namespace {
 
 constexpr int TS = 16;          // tile side
-constexpr int LANES = 8;        // column group: one AVX2 float vector; a splat's groups start at its box's first column
+constexpr int LANES = 8;        // pixel group: one AVX2 float vector; a splat's groups start at its box's first column
 constexpr int RS = TS + LANES;  // row stride of a tile's pixel arrays: a group from any column stays in its row
-constexpr int TP = TS * RS;     // pixel slots per tile; the LANES padding slots of a row never blend
+constexpr int TP = (TS + 1) * RS;  // pixel slots per tile: padding columns and a padding row, never blended
 constexpr double ALPHA_MIN = 1.0 / 255.0;
 constexpr double ALPHA_MAX = 0.99;
 constexpr double T_MIN = 1e-4;
@@ -588,6 +589,27 @@ inline RowVec row_vec(const Row<float>& rw) {
   return {_mm256_set1_ps(rw.a0), _mm256_set1_ps(rw.a1), _mm256_set1_ps(rw.a2), _mm256_set1_ps(rw.b0),
           _mm256_set1_ps(rw.b1), _mm256_set1_ps(rw.b2), _mm256_set1_ps(rw.dy2)};
 }
+// A 4x2 group's per-row values: a in lanes 0-3 (its first row), b in lanes 4-7.
+inline __m256 halves(float a, float b) { return _mm256_set_m128(_mm_set1_ps(b), _mm_set1_ps(a)); }
+inline RowVec row_vec(const Row<float>& a, const Row<float>& b) {
+  return {halves(a.a0, b.a0), halves(a.a1, b.a1), halves(a.a2, b.a2), halves(a.b0, b.b0),
+          halves(a.b1, b.b1), halves(a.b2, b.b2), halves(a.dy2, b.dy2)};
+}
+// The 8 pixels of a group from tile slot p: 8 columns of a row, or (PAIR) 4 columns of two rows.
+template <bool PAIR>
+inline __m256 load8(const float* p) {
+  if constexpr (PAIR) return _mm256_loadu2_m128(p + RS, p);
+  else return _mm256_loadu_ps(p);
+}
+template <bool PAIR>
+inline void store8(float* p, __m256 v) {
+  if constexpr (PAIR) _mm256_storeu2_m128(p + RS, p, v);
+  else _mm256_storeu_ps(p, v);
+}
+template <bool PAIR>
+inline __m256i load8i(const int32_t* p) {
+  return _mm256_castps_si256(load8<PAIR>(reinterpret_cast<const float*>(p)));
+}
 struct Hit8 {
   __m256 nz, inv, u, v, dx, use3, z, g;
 };
@@ -633,15 +655,18 @@ inline Hit<S> hit(const S* M, const Row<S>& r, S mx, S o, S x, S near) {
 
 // A record's pixel range in tile (tx, ty): rows as pixel offsets [p0, p1) (stride RS), columns
 // [c0, c1): whole groups from the box's first column, so a box up to LANES wide costs one group
-// wherever it lies (aligned groups cost two for every box straddling column 8). Columns past the
+// wherever it lies (aligned groups cost two for every box straddling column 8). Pixels past the
 // box, padding included, get alpha < ALPHA_MIN (the box bounds it) or are inactive: they never blend.
+// The AVX2 loops take a box at most 4 columns wide (most splats of a mapped scene: the low-pass
+// filter's reach) as 4x2 groups, columns [c0, c0 + 4) of two rows, which halves its groups.
 struct Span {
   int p0, p1, c0, c1;
+  bool pairs;
 };
 inline Span span_of(const int* r, int tx, int ty) {
   const int c0 = std::max(r[0] - tx * TS, 0), cl = std::min(r[2] - tx * TS, TS - 1);
   return Span{std::max(r[1] - ty * TS, 0) * RS, (std::min(r[3] - ty * TS, TS - 1) + 1) * RS,
-              c0, c0 + (cl - c0 + LANES) / LANES * LANES};
+              c0, c0 + (cl - c0 + LANES) / LANES * LANES, cl - c0 < LANES / 2};
 }
 
 struct Flags {
@@ -673,7 +698,7 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
     const int x = tx * TS + (p % RS), y = ty * TS + p / RS;
     px[p] = S(x) + S(0.5);
     py[p] = S(y) + S(0.5);
-    act[p] = (p % RS < TS && x < st.W && y < st.H) ? S(1) : S(0);
+    act[p] = (p % RS < TS && p / RS < TS && x < st.W && y < st.H) ? S(1) : S(0);
     T[p] = S(1);
     accA[p] = accZ[p] = accM[p] = accM2[p] = medz[p] = w[p] = S(0);
     zz[p] = S(st.near);
@@ -685,12 +710,12 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
   int64_t evals = 0, blends = 0;
 #if FR_AVX2
   if constexpr (std::is_same<S, float>::value) {
-    // The same per-pixel arithmetic as the generic loop below, in AVX2 registers: one column group
-    // (8 pixels) at a time, its weights going straight into the accumulators (only the groups a
+    // The same per-pixel arithmetic as the generic loop below, in AVX2 registers: one group of 8
+    // pixels at a time (8 columns of a row, or 4 of two rows for a narrow box), its weights going straight into the accumulators (only the groups a
     // splat covers are visited), the blend masks kept in registers instead of masked stores, and
     // exp inline. Records are prefetched a few splats ahead (the tile lists them in depth order,
     // scattered in memory).
-    uint32_t live[TS];  // per row, a bit for each pixel in the image not yet terminated
+    uint32_t live[TS + 1] = {};  // per row, a bit for each pixel in the image not yet terminated
     int rows_alive = 0;
     for (int r = 0; r < TS; ++r) {
       live[r] = ty * TS + r < st.H ? (1u << std::min(TS, st.W - tx * TS)) - 1 : 0u;
@@ -720,62 +745,79 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
       const __m256 m6 = _mm256_set1_ps(M[6]), m7 = _mm256_set1_ps(M[7]), m8 = _mm256_set1_ps(M[8]);
       const __m256 vj = _mm256_castsi256_ps(_mm256_set1_epi32(j));
       const __m256 vj1 = _mm256_castsi256_ps(_mm256_set1_epi32(j + 1));
+      // One group at slot pg (see load8); returns the mask of its pixels that terminate.
+      auto group = [&](auto pair, int pg, const RowVec& rv) -> int {
+        constexpr bool P = decltype(pair)::value;
+        evals += LANES;
+        const __m256 x = load8<P>(px + pg);
+        const Hit8 h = hit8(x, rv, vmx, m6, m7, m8);
+        const __m256 nz = h.nz, z = h.z, g = h.g;
+        const __m256 a = _mm256_min_ps(amax, _mm256_mul_ps(vo, g));
+        const __m256 Tp = load8<P>(T + pg), actp = load8<P>(act + pg);
+        const __m256 ok = _mm256_and_ps(
+            _mm256_and_ps(nz, _mm256_cmp_ps(z, vnear, _CMP_GE_OQ)),
+            _mm256_and_ps(_mm256_cmp_ps(a, amin, _CMP_GE_OQ), _mm256_cmp_ps(actp, zero, _CMP_NEQ_UQ)));
+        const __m256 testT = _mm256_mul_ps(Tp, _mm256_sub_ps(one, a));
+        const __m256 stop = _mm256_and_ps(ok, _mm256_cmp_ps(testT, tmin, _CMP_LT_OQ));
+        const __m256 blend = _mm256_andnot_ps(stop, ok);
+        const int bm = _mm256_movemask_ps(blend), sm = _mm256_movemask_ps(stop);
+        blends += __builtin_popcount(unsigned(bm));
+        if (sm) store8<P>(act + pg, _mm256_andnot_ps(stop, actp));
+        if (!bm) return sm;
+        const __m256 wp = _mm256_and_ps(blend, _mm256_mul_ps(a, Tp));
+        if constexpr (TRACK) {  // features-only calls (view selection) skip the depth bookkeeping
+          const __m256 med = _mm256_and_ps(blend, _mm256_cmp_ps(Tp, half, _CMP_GT_OQ));
+          store8<P>(medz + pg, _mm256_blendv_ps(load8<P>(medz + pg), z, med));
+          float* mj = reinterpret_cast<float*>(medj + pg);
+          store8<P>(mj, _mm256_blendv_ps(load8<P>(mj), vj, med));
+          float* lj = reinterpret_cast<float*>(last + pg);
+          store8<P>(lj, _mm256_blendv_ps(load8<P>(lj), vj1, blend));
+        }
+        store8<P>(T + pg, _mm256_blendv_ps(Tp, testT, blend));
+        store8<P>(accA + pg, _mm256_add_ps(load8<P>(accA + pg), wp));
+        for (int d = 0; d < D; ++d) {
+          float* acc = &accF[size_t(d) * TP + pg];
+          store8<P>(acc, _mm256_fmadd_ps(wp, _mm256_set1_ps(f[d]), load8<P>(acc)));
+        }
+        if (fl.normal)
+          for (int c = 0; c < 3; ++c) {
+            float* acc = &accN[size_t(c) * TP + pg];
+            store8<P>(acc, _mm256_fmadd_ps(wp, _mm256_set1_ps(q[12 + c]), load8<P>(acc)));
+          }
+        if (dz) {
+          const __m256 zs = _mm256_blendv_ps(vnear, z, blend);
+          const __m256 m = _mm256_mul_ps(vmscale, _mm256_sub_ps(one, _mm256_div_ps(vnear, zs)));
+          const __m256 wm = _mm256_mul_ps(wp, m);
+          store8<P>(accZ + pg, _mm256_fmadd_ps(wp, zs, load8<P>(accZ + pg)));
+          store8<P>(accM + pg, _mm256_add_ps(load8<P>(accM + pg), wm));
+          store8<P>(accM2 + pg, _mm256_fmadd_ps(wm, m, load8<P>(accM2 + pg)));
+        }
+        return sm;
+      };
+      // clears the live bits of the pixels of row r whose terminate bits are set in sm (4 or 8 bits)
+      auto terminate = [&](int r, uint32_t sm, int c) {
+        if (!sm) return;
+        live[r] &= ~(sm << c);
+        rows_alive -= live[r] == 0;
+      };
+      if (sp.pairs) {
+        for (int p00 = sp.p0; p00 < sp.p1; p00 += 2 * RS) {  // the second row may be past the box
+          const int r = p00 / RS;
+          if ((((live[r] | live[r + 1]) >> sp.c0) & 0xfu) == 0) continue;  // its 8 pixels have terminated
+          const RowVec rv = row_vec(row_of(M, py[p00], my), row_of(M, py[p00 + RS], my));
+          const uint32_t sm = uint32_t(group(std::true_type{}, p00 + sp.c0, rv));
+          terminate(r, sm & 0xfu, sp.c0);
+          terminate(r + 1, sm >> 4, sp.c0);
+        }
+        continue;
+      }
       for (int p00 = sp.p0; p00 < sp.p1; p00 += RS) {
-        uint32_t& row_live = live[p00 / RS];
-        if (row_live == 0) continue;  // every pixel of this row has terminated
-        const Row<float> rw = row_of(M, py[p00], my);
-        const RowVec rv = row_vec(rw);
+        const int r = p00 / RS;
+        if (live[r] == 0) continue;  // every pixel of this row has terminated
+        const RowVec rv = row_vec(row_of(M, py[p00], my));
         for (int c = sp.c0; c < sp.c1; c += LANES) {
-          if (((row_live >> c) & 0xffu) == 0) continue;  // its 8 pixels have terminated
-          const int pg = p00 + c;
-          evals += LANES;
-          const __m256 x = _mm256_loadu_ps(px + pg);
-          const Hit8 h = hit8(x, rv, vmx, m6, m7, m8);
-          const __m256 nz = h.nz, z = h.z, g = h.g;
-          const __m256 a = _mm256_min_ps(amax, _mm256_mul_ps(vo, g));
-          const __m256 Tp = _mm256_loadu_ps(T + pg), actp = _mm256_loadu_ps(act + pg);
-          const __m256 ok = _mm256_and_ps(
-              _mm256_and_ps(nz, _mm256_cmp_ps(z, vnear, _CMP_GE_OQ)),
-              _mm256_and_ps(_mm256_cmp_ps(a, amin, _CMP_GE_OQ), _mm256_cmp_ps(actp, zero, _CMP_NEQ_UQ)));
-          const __m256 testT = _mm256_mul_ps(Tp, _mm256_sub_ps(one, a));
-          const __m256 stop = _mm256_and_ps(ok, _mm256_cmp_ps(testT, tmin, _CMP_LT_OQ));
-          const __m256 blend = _mm256_andnot_ps(stop, ok);
-          const int bm = _mm256_movemask_ps(blend), sm = _mm256_movemask_ps(stop);
-          blends += __builtin_popcount(unsigned(bm));
-          if (sm) {
-            _mm256_storeu_ps(act + pg, _mm256_andnot_ps(stop, actp));
-            row_live &= ~(uint32_t(sm) << c);
-            rows_alive -= row_live == 0;
-          }
-          if (!bm) continue;
-          const __m256 wp = _mm256_and_ps(blend, _mm256_mul_ps(a, Tp));
-          if constexpr (TRACK) {  // features-only calls (view selection) skip the depth bookkeeping
-            const __m256 med = _mm256_and_ps(blend, _mm256_cmp_ps(Tp, half, _CMP_GT_OQ));
-            _mm256_storeu_ps(medz + pg, _mm256_blendv_ps(_mm256_loadu_ps(medz + pg), z, med));
-            float* mj = reinterpret_cast<float*>(medj + pg);
-            _mm256_storeu_ps(mj, _mm256_blendv_ps(_mm256_loadu_ps(mj), vj, med));
-            float* lj = reinterpret_cast<float*>(last + pg);
-            _mm256_storeu_ps(lj, _mm256_blendv_ps(_mm256_loadu_ps(lj), vj1, blend));
-          }
-          _mm256_storeu_ps(T + pg, _mm256_blendv_ps(Tp, testT, blend));
-          _mm256_storeu_ps(accA + pg, _mm256_add_ps(_mm256_loadu_ps(accA + pg), wp));
-          for (int d = 0; d < D; ++d) {
-            float* acc = &accF[size_t(d) * TP + pg];
-            _mm256_storeu_ps(acc, _mm256_fmadd_ps(wp, _mm256_set1_ps(f[d]), _mm256_loadu_ps(acc)));
-          }
-          if (fl.normal)
-            for (int c = 0; c < 3; ++c) {
-              float* acc = &accN[size_t(c) * TP + pg];
-              _mm256_storeu_ps(acc, _mm256_fmadd_ps(wp, _mm256_set1_ps(q[12 + c]), _mm256_loadu_ps(acc)));
-            }
-          if (dz) {
-            const __m256 zs = _mm256_blendv_ps(vnear, z, blend);
-            const __m256 m = _mm256_mul_ps(vmscale, _mm256_sub_ps(one, _mm256_div_ps(vnear, zs)));
-            const __m256 wm = _mm256_mul_ps(wp, m);
-            _mm256_storeu_ps(accZ + pg, _mm256_fmadd_ps(wp, zs, _mm256_loadu_ps(accZ + pg)));
-            _mm256_storeu_ps(accM + pg, _mm256_add_ps(_mm256_loadu_ps(accM + pg), wm));
-            _mm256_storeu_ps(accM2 + pg, _mm256_fmadd_ps(wm, m, _mm256_loadu_ps(accM2 + pg)));
-          }
+          if (((live[r] >> c) & 0xffu) == 0) continue;  // its 8 pixels have terminated
+          terminate(r, uint32_t(group(std::false_type{}, p00 + c, rv)), c);
         }
       }
     }
@@ -858,7 +900,7 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
   }
   for (int p = 0; p < TP; ++p) {
     const int x = tx * TS + (p % RS), y = ty * TS + p / RS;
-    if (p % RS >= TS || x >= st.W || y >= st.H) continue;
+    if (p % RS >= TS || p / RS >= TS || x >= st.W || y >= st.H) continue;
     const int64_t q = int64_t(y) * st.W + x;
     for (int d = 0; d < D; ++d) out.feat[q * D + d] = accF[size_t(d) * TP + p];
     out.alpha[q] = accA[p];
@@ -1030,6 +1072,23 @@ inline float hsum8(__m256 v) {
   return _mm_cvtss_f32(s);
 }
 
+// A group's row values for the backward: those of `hit8` and the row's l, y and y - my; for a 4x2
+// group, rows ya (lanes 0-3) and yb (lanes 4-7).
+struct RowB {
+  RowVec rv;
+  __m256 l0, l1, l2, y, dyc;
+};
+inline RowB row_b(const float* M, float y, float my) {
+  const Row<float> a = row_of(M, y, my);
+  return {row_vec(a), _mm256_set1_ps(a.l0), _mm256_set1_ps(a.l1), _mm256_set1_ps(a.l2), _mm256_set1_ps(y),
+          _mm256_set1_ps(y - my)};
+}
+inline RowB row_b(const float* M, float ya, float yb, float my) {
+  const Row<float> a = row_of(M, ya, my), b = row_of(M, yb, my);
+  return {row_vec(a, b), halves(a.l0, b.l0), halves(a.l1, b.l1), halves(a.l2, b.l2), halves(ya, yb),
+          halves(ya - my, yb - my)};
+}
+
 // The backward blend of one tile for float (not the Fisher mode): the per-pixel arithmetic of the
 // generic loop in backward_tile, in AVX2 registers, with each splat's per-pixel gradient terms summed
 // in 8-lane registers over the groups it covers (one horizontal sum per slot entry at the end)
@@ -1069,82 +1128,90 @@ void backward_splats_avx2(const Bins<float>& B, int D, const Flags& fl, int tx, 
     __m256 acc[NG], accO = zero, accN[3] = {zero, zero, zero}, accF[MAX_D_AVX2];
     for (int e = 0; e < NG; ++e) acc[e] = zero;
     for (int d = 0; d < D; ++d) accF[d] = zero;
-    for (int p00 = sp.p0; p00 < sp.p1; p00 += RS) {
-      if (j >= row_last[p00 / RS]) continue;  // no pixel of this row blends this splat or any later one
-      const Row<float> rw = row_of(M, py[p00], my);
-      const RowVec rv = row_vec(rw);
-      const __m256 l0 = _mm256_set1_ps(rw.l0), l1 = _mm256_set1_ps(rw.l1), l2 = _mm256_set1_ps(rw.l2);
-      const __m256 y = _mm256_set1_ps(py[p00]);
-      const __m256 dyc = _mm256_set1_ps(py[p00] - my);
-      for (int pg = p00 + sp.c0; pg < p00 + sp.c1; pg += LANES) {
-        const __m256 x = _mm256_loadu_ps(px + pg);
-        const Hit8 h = hit8(x, rv, vmx, m6, m7, m8);
-        const __m256 nz = h.nz, inv = h.inv, u = h.u, v = h.v, dx = h.dx, use3 = h.use3, z = h.z, g = h.g;
-        const __m256 og = _mm256_mul_ps(vo, g);
-        const __m256 ah = _mm256_min_ps(amax, og);
-        const __m256 lastp = _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(last + pg)), vj));
-        const __m256 blend = _mm256_and_ps(
-            _mm256_and_ps(nz, _mm256_cmp_ps(z, vnear, _CMP_GE_OQ)), _mm256_and_ps(_mm256_cmp_ps(ah, amin, _CMP_GE_OQ), lastp));
-        const __m256i medm = _mm256_cmpeq_epi32(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(medj + pg)), vj);
-        if (_mm256_movemask_ps(blend) == 0 && _mm256_testz_si256(medm, medm)) continue;  // all terms are 0
-        const __m256 a = _mm256_and_ps(blend, ah);
-        const __m256 zs = _mm256_blendv_ps(vnear, z, blend);
-        const __m256 Tp = _mm256_loadu_ps(T + pg);
-        const __m256 wp = _mm256_mul_ps(a, Tp);
-        __m256 sf = _mm256_loadu_ps(gA + pg);
-        for (int d = 0; d < D; ++d) sf = _mm256_fmadd_ps(_mm256_set1_ps(f[d]), _mm256_loadu_ps(gF + size_t(d) * TP + pg), sf);
-        if (fl.normal)
-          for (int c = 0; c < 3; ++c) sf = _mm256_fmadd_ps(_mm256_set1_ps(q[12 + c]), _mm256_loadu_ps(gN + size_t(c) * TP + pg), sf);
-        __m256 dzv = _mm256_and_ps(_mm256_castsi256_ps(medm), _mm256_loadu_ps(gMed + pg));
-        if (dz) {
-          const __m256 m = _mm256_mul_ps(vmscale, _mm256_sub_ps(one, _mm256_div_ps(vnear, zs)));
-          const __m256 dm = _mm256_div_ps(vmder, _mm256_mul_ps(zs, zs));
-          const __m256 gz = _mm256_loadu_ps(gZ + pg), gm = _mm256_loadu_ps(gM + pg), gm2 = _mm256_loadu_ps(gM2 + pg);
-          sf = _mm256_fmadd_ps(gz, zs, sf);
-          sf = _mm256_fmadd_ps(gm, m, sf);
-          sf = _mm256_fmadd_ps(_mm256_mul_ps(gm2, m), m, sf);
-          const __m256 inner = _mm256_fmadd_ps(_mm256_mul_ps(_mm256_mul_ps(gm2, two), m), dm, _mm256_fmadd_ps(gm, dm, gz));
-          dzv = _mm256_fmadd_ps(wp, inner, dzv);
-        }
-        const __m256 pre = _mm256_fmadd_ps(wp, sf, _mm256_loadu_ps(Pre + pg));
-        _mm256_storeu_ps(Pre + pg, pre);
-        const __m256 rest = _mm256_sub_ps(_mm256_loadu_ps(Tot + pg), pre);
-        const __m256 dA = _mm256_sub_ps(_mm256_mul_ps(Tp, sf), _mm256_div_ps(rest, _mm256_sub_ps(one, a)));
-        const __m256 free_a = _mm256_and_ps(blend, _mm256_cmp_ps(og, amax, _CMP_LT_OQ));
-        const __m256 dOp = _mm256_and_ps(free_a, _mm256_mul_ps(dA, g));
-        const __m256 drho = _mm256_and_ps(free_a, _mm256_mul_ps(_mm256_mul_ps(mhalf, dA), a));
-        const __m256 dzu = _mm256_and_ps(use3, dzv);
-        const __m256 d2 = _mm256_mul_ps(drho, two);
-        const __m256 du = _mm256_fmadd_ps(m6, dzu, _mm256_and_ps(use3, _mm256_mul_ps(d2, u)));
-        const __m256 dv = _mm256_fmadd_ps(m7, dzu, _mm256_and_ps(use3, _mm256_mul_ps(d2, v)));
-        const __m256 df = _mm256_andnot_ps(use3, _mm256_mul_ps(drho, fm2));
-        const __m256 dmx = _mm256_mul_ps(df, dx), dmy = _mm256_mul_ps(df, dyc);
-        const __m256 dq0 = _mm256_mul_ps(du, inv), dq1 = _mm256_mul_ps(dv, inv);
-        const __m256 dq2 = _mm256_mul_ps(_mm256_sub_ps(zero, _mm256_fmadd_ps(du, u, _mm256_mul_ps(dv, v))), inv);
-        const __m256 k0 = _mm256_fmsub_ps(x, m6, m0), k1 = _mm256_fmsub_ps(x, m7, m1), k2 = _mm256_fmsub_ps(x, m8, m2);
-        // q = k x l: dk = l x dq, dl = dq x k
-        const __m256 dk0 = _mm256_fmsub_ps(l1, dq2, _mm256_mul_ps(l2, dq1));
-        const __m256 dk1 = _mm256_fmsub_ps(l2, dq0, _mm256_mul_ps(l0, dq2));
-        const __m256 dk2 = _mm256_fmsub_ps(l0, dq1, _mm256_mul_ps(l1, dq0));
-        const __m256 dl0 = _mm256_fmsub_ps(dq1, k2, _mm256_mul_ps(dq2, k1));
-        const __m256 dl1 = _mm256_fmsub_ps(dq2, k0, _mm256_mul_ps(dq0, k2));
-        const __m256 dl2 = _mm256_fmsub_ps(dq0, k1, _mm256_mul_ps(dq1, k0));
-        acc[0] = _mm256_sub_ps(acc[0], dk0);
-        acc[1] = _mm256_sub_ps(acc[1], dk1);
-        acc[2] = _mm256_sub_ps(acc[2], dk2);
-        acc[3] = _mm256_sub_ps(acc[3], dl0);
-        acc[4] = _mm256_sub_ps(acc[4], dl1);
-        acc[5] = _mm256_sub_ps(acc[5], dl2);
-        acc[6] = _mm256_add_ps(acc[6], _mm256_fmadd_ps(x, dk0, _mm256_fmadd_ps(y, dl0, _mm256_mul_ps(u, dzu))));
-        acc[7] = _mm256_add_ps(acc[7], _mm256_fmadd_ps(x, dk1, _mm256_fmadd_ps(y, dl1, _mm256_mul_ps(v, dzu))));
-        acc[8] = _mm256_add_ps(acc[8], _mm256_fmadd_ps(x, dk2, _mm256_fmadd_ps(y, dl2, dzv)));
-        acc[9] = _mm256_add_ps(acc[9], dmx);
-        acc[10] = _mm256_add_ps(acc[10], dmy);
-        accO = _mm256_add_ps(accO, dOp);
-        if (fl.normal)
-          for (int c = 0; c < 3; ++c) accN[c] = _mm256_fmadd_ps(wp, _mm256_loadu_ps(gN + size_t(c) * TP + pg), accN[c]);
-        for (int d = 0; d < D; ++d) accF[d] = _mm256_fmadd_ps(wp, _mm256_loadu_ps(gF + size_t(d) * TP + pg), accF[d]);
-        _mm256_storeu_ps(T + pg, _mm256_mul_ps(Tp, _mm256_sub_ps(one, a)));
+    // One group at slot pg (see load8): its terms go into the splat's 8-lane sums.
+    auto group = [&](auto pair, int pg, const RowB& rb) {
+      constexpr bool P = decltype(pair)::value;
+      const __m256 x = load8<P>(px + pg);
+      const Hit8 h = hit8(x, rb.rv, vmx, m6, m7, m8);
+      const __m256 l0 = rb.l0, l1 = rb.l1, l2 = rb.l2, y = rb.y, dyc = rb.dyc;
+      const __m256 nz = h.nz, inv = h.inv, u = h.u, v = h.v, dx = h.dx, use3 = h.use3, z = h.z, g = h.g;
+      const __m256 og = _mm256_mul_ps(vo, g);
+      const __m256 ah = _mm256_min_ps(amax, og);
+      const __m256 lastp = _mm256_castsi256_ps(_mm256_cmpgt_epi32(load8i<P>(last + pg), vj));
+      const __m256 blend = _mm256_and_ps(
+          _mm256_and_ps(nz, _mm256_cmp_ps(z, vnear, _CMP_GE_OQ)), _mm256_and_ps(_mm256_cmp_ps(ah, amin, _CMP_GE_OQ), lastp));
+      const __m256i medm = _mm256_cmpeq_epi32(load8i<P>(medj + pg), vj);
+      if (_mm256_movemask_ps(blend) == 0 && _mm256_testz_si256(medm, medm)) return;  // all terms are 0
+      const __m256 a = _mm256_and_ps(blend, ah);
+      const __m256 zs = _mm256_blendv_ps(vnear, z, blend);
+      const __m256 Tp = load8<P>(T + pg);
+      const __m256 wp = _mm256_mul_ps(a, Tp);
+      __m256 sf = load8<P>(gA + pg);
+      for (int d = 0; d < D; ++d) sf = _mm256_fmadd_ps(_mm256_set1_ps(f[d]), load8<P>(gF + size_t(d) * TP + pg), sf);
+      if (fl.normal)
+        for (int c = 0; c < 3; ++c) sf = _mm256_fmadd_ps(_mm256_set1_ps(q[12 + c]), load8<P>(gN + size_t(c) * TP + pg), sf);
+      __m256 dzv = _mm256_and_ps(_mm256_castsi256_ps(medm), load8<P>(gMed + pg));
+      if (dz) {
+        const __m256 m = _mm256_mul_ps(vmscale, _mm256_sub_ps(one, _mm256_div_ps(vnear, zs)));
+        const __m256 dm = _mm256_div_ps(vmder, _mm256_mul_ps(zs, zs));
+        const __m256 gz = load8<P>(gZ + pg), gm = load8<P>(gM + pg), gm2 = load8<P>(gM2 + pg);
+        sf = _mm256_fmadd_ps(gz, zs, sf);
+        sf = _mm256_fmadd_ps(gm, m, sf);
+        sf = _mm256_fmadd_ps(_mm256_mul_ps(gm2, m), m, sf);
+        const __m256 inner = _mm256_fmadd_ps(_mm256_mul_ps(_mm256_mul_ps(gm2, two), m), dm, _mm256_fmadd_ps(gm, dm, gz));
+        dzv = _mm256_fmadd_ps(wp, inner, dzv);
+      }
+      const __m256 pre = _mm256_fmadd_ps(wp, sf, load8<P>(Pre + pg));
+      store8<P>(Pre + pg, pre);
+      const __m256 rest = _mm256_sub_ps(load8<P>(Tot + pg), pre);
+      const __m256 dA = _mm256_sub_ps(_mm256_mul_ps(Tp, sf), _mm256_div_ps(rest, _mm256_sub_ps(one, a)));
+      const __m256 free_a = _mm256_and_ps(blend, _mm256_cmp_ps(og, amax, _CMP_LT_OQ));
+      const __m256 dOp = _mm256_and_ps(free_a, _mm256_mul_ps(dA, g));
+      const __m256 drho = _mm256_and_ps(free_a, _mm256_mul_ps(_mm256_mul_ps(mhalf, dA), a));
+      const __m256 dzu = _mm256_and_ps(use3, dzv);
+      const __m256 d2 = _mm256_mul_ps(drho, two);
+      const __m256 du = _mm256_fmadd_ps(m6, dzu, _mm256_and_ps(use3, _mm256_mul_ps(d2, u)));
+      const __m256 dv = _mm256_fmadd_ps(m7, dzu, _mm256_and_ps(use3, _mm256_mul_ps(d2, v)));
+      const __m256 df = _mm256_andnot_ps(use3, _mm256_mul_ps(drho, fm2));
+      const __m256 dmx = _mm256_mul_ps(df, dx), dmy = _mm256_mul_ps(df, dyc);
+      const __m256 dq0 = _mm256_mul_ps(du, inv), dq1 = _mm256_mul_ps(dv, inv);
+      const __m256 dq2 = _mm256_mul_ps(_mm256_sub_ps(zero, _mm256_fmadd_ps(du, u, _mm256_mul_ps(dv, v))), inv);
+      const __m256 k0 = _mm256_fmsub_ps(x, m6, m0), k1 = _mm256_fmsub_ps(x, m7, m1), k2 = _mm256_fmsub_ps(x, m8, m2);
+      // q = k x l: dk = l x dq, dl = dq x k
+      const __m256 dk0 = _mm256_fmsub_ps(l1, dq2, _mm256_mul_ps(l2, dq1));
+      const __m256 dk1 = _mm256_fmsub_ps(l2, dq0, _mm256_mul_ps(l0, dq2));
+      const __m256 dk2 = _mm256_fmsub_ps(l0, dq1, _mm256_mul_ps(l1, dq0));
+      const __m256 dl0 = _mm256_fmsub_ps(dq1, k2, _mm256_mul_ps(dq2, k1));
+      const __m256 dl1 = _mm256_fmsub_ps(dq2, k0, _mm256_mul_ps(dq0, k2));
+      const __m256 dl2 = _mm256_fmsub_ps(dq0, k1, _mm256_mul_ps(dq1, k0));
+      acc[0] = _mm256_sub_ps(acc[0], dk0);
+      acc[1] = _mm256_sub_ps(acc[1], dk1);
+      acc[2] = _mm256_sub_ps(acc[2], dk2);
+      acc[3] = _mm256_sub_ps(acc[3], dl0);
+      acc[4] = _mm256_sub_ps(acc[4], dl1);
+      acc[5] = _mm256_sub_ps(acc[5], dl2);
+      acc[6] = _mm256_add_ps(acc[6], _mm256_fmadd_ps(x, dk0, _mm256_fmadd_ps(y, dl0, _mm256_mul_ps(u, dzu))));
+      acc[7] = _mm256_add_ps(acc[7], _mm256_fmadd_ps(x, dk1, _mm256_fmadd_ps(y, dl1, _mm256_mul_ps(v, dzu))));
+      acc[8] = _mm256_add_ps(acc[8], _mm256_fmadd_ps(x, dk2, _mm256_fmadd_ps(y, dl2, dzv)));
+      acc[9] = _mm256_add_ps(acc[9], dmx);
+      acc[10] = _mm256_add_ps(acc[10], dmy);
+      accO = _mm256_add_ps(accO, dOp);
+      if (fl.normal)
+        for (int c = 0; c < 3; ++c) accN[c] = _mm256_fmadd_ps(wp, load8<P>(gN + size_t(c) * TP + pg), accN[c]);
+      for (int d = 0; d < D; ++d) accF[d] = _mm256_fmadd_ps(wp, load8<P>(gF + size_t(d) * TP + pg), accF[d]);
+      store8<P>(T + pg, _mm256_mul_ps(Tp, _mm256_sub_ps(one, a)));
+    };
+    if (sp.pairs) {
+      for (int p00 = sp.p0; p00 < sp.p1; p00 += 2 * RS) {  // the second row may be past the box
+        const int r = p00 / RS;
+        if (j >= row_last[r] && j >= row_last[r + 1]) continue;
+        group(std::true_type{}, p00 + sp.c0, row_b(M, py[p00], py[p00 + RS], my));
+      }
+    } else {
+      for (int p00 = sp.p0; p00 < sp.p1; p00 += RS) {
+        if (j >= row_last[p00 / RS]) continue;  // no pixel of this row blends this splat or any later one
+        const RowB rb = row_b(M, py[p00], my);
+        for (int pg = p00 + sp.c0; pg < p00 + sp.c1; pg += LANES) group(std::false_type{}, pg, rb);
       }
     }
     for (int e = 0; e < NG; ++e) slot[e] = hsum8(acc[e]);
@@ -1177,7 +1244,7 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
     gA[p] = gZ[p] = gM[p] = gM2[p] = gMed[p] = Tot[p] = S(0);
     last[p] = 0;
     medj[p] = -1;
-    if (p % RS >= TS || x >= st.W || y >= st.H) continue;
+    if (p % RS >= TS || p / RS >= TS || x >= st.W || y >= st.H) continue;
     const int64_t q = int64_t(y) * st.W + x;
     S tot = 0;
     for (int d = 0; d < D; ++d) {
@@ -1201,7 +1268,7 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
     medj[p] = in.medj[q];
     maxlast = std::max(maxlast, last[p]);
   }
-  int32_t row_last[TS];
+  int32_t row_last[TS + 1] = {};  // the padding row's is 0
   for (int r = 0; r < TS; ++r) row_last[r] = *std::max_element(last + r * RS, last + r * RS + TS);
   const S near = S(st.near), mscale = S(st.far / (st.far - st.near));
   const S mder = S(st.far * st.near / (st.far - st.near));
