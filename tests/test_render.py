@@ -99,6 +99,27 @@ def test_cpu_gradients_match_reference_autograd(per_camera):
         torch.testing.assert_close(y, x, rtol=1e-6, atol=1e-7 * x.abs().max().item(), msg=name)
 
 
+def test_float32_blend_loops_agree_with_float64():
+    """The float32 AVX2 loops (8-column groups from any column, 4x2 groups for boxes at most 4 px
+    wide, which reach one row past the box) against the float64 generic loops, on many small splats
+    at every tile position; the gradient tolerance is float32's own (the old code's figures too)."""
+    scene = make_scene(600, seed=5, spread=0.5, size=(0.002, 0.05))
+    vm, K = cameras(2, 70, 45)
+    res = {}
+    for dt in (torch.float64, torch.float32):
+        ps = [t.to(dt).clone().requires_grad_(True) for t in scene]
+        out = render(*ps, vm.to(dt), K.to(dt), 70, 45, outputs=ALL, backend="cpu")
+        g = torch.Generator().manual_seed(3)
+        loss = sum((getattr(out, k).double() * torch.randn(getattr(out, k).shape, generator=g,
+                                                            dtype=torch.float64)).sum() for k in ALL)
+        loss.backward()
+        res[dt] = (out, [p.grad.double() for p in ps])
+    assert_agree(res[torch.float64][0], res[torch.float32][0])
+    for name, x, y in zip(("means", "quats", "log_scales", "opacity", "features"), res[torch.float64][1],
+                          res[torch.float32][1]):
+        torch.testing.assert_close(y, x, rtol=0, atol=5e-3 * x.abs().max().item(), msg=name)
+
+
 def test_cpu_gradcheck_float64():
     means, quats, ls, op, feats = make_scene(4, seed=11, dtype=torch.float64, spread=0.1, size=(0.05, 0.1))
     vm, K = cameras(2, 8, 6, torch.float64, f=6.0)
