@@ -367,6 +367,13 @@ def test_bad_inputs_give_clear_errors():
     bad[0][2, 1] = float("nan")
     with pytest.raises(DataError, match="means"):
         render(*bad, vm, K, 8, 8)
+    bad = [t.clone() for t in scene]
+    bad[1][0, 0] = float("-inf")
+    with pytest.raises(DataError, match="quats"):
+        render(*bad, vm, K, 8, 8)
+    huge = scene[4].clone()
+    huge[:2] = 3e38  # finite, though their sum overflows: not an error
+    render(*scene[:4], huge, vm, K, 8, 8)
     with pytest.raises(FlightReconError, match="quats"):
         render(scene[0], scene[1][:, :3], *scene[2:], vm, K, 8, 8)
     with pytest.raises(FlightReconError, match="backend"):
