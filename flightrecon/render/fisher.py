@@ -21,7 +21,7 @@ from torch import Tensor
 
 from flightrecon.render.api import check_inputs
 from flightrecon.render.extension import load
-from flightrecon.render.projection import splat_axes
+from flightrecon.render.backend_cpu import splat_axes_cpu
 
 NG = 11
 _IU = torch.triu_indices(NG, NG)
@@ -96,7 +96,7 @@ def render_fisher_diag(means: Tensor, quats: Tensor, log_scales: Tensor, opacity
                  near, far, ())
     with torch.no_grad():
         dt = means.dtype
-        U, V, n = splat_axes(quats, log_scales)
+        U, V, n = splat_axes_cpu(quats, log_scales)  # the axes the cpu backend renders with
         opac = torch.sigmoid(opacity_logits)
         feats = (colors if colors.dim() == 3 else colors[None]).to(dt).contiguous()
         cams = (viewmats.double().contiguous(), Ks.double().contiguous())
