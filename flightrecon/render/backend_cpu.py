@@ -2,9 +2,10 @@
 
 The kernel consumes world-frame splat axes (mean, U = s_u t_u, V = s_v t_v, unit normal n): the
 camera projection is linear in them, so the kernel's backward returns their gradients directly and
-SplatAxesCPU carries them on to quats and log_scales (projection.splat_axes is its statement). The kernel blends raw sums (alpha,
-sum w z, sum w m, sum w m^2); expected depth and distortion (alpha * M2 - M1^2, which equals
-sum_{i>j} w_i w_j (m_i - m_j)^2) are formed here, so their gradients come from autograd too.
+SplatAxesCPU carries them on to quats and log_scales (projection.splat_axes is its statement). The
+kernel blends raw sums (alpha, sum w z, sum w m, sum w m^2); expected depth and distortion
+(alpha * M2 - M1^2, which equals sum_{i>j} w_i w_j (m_i - m_j)^2) are formed here, so their
+gradients come from autograd too.
 """
 
 from __future__ import annotations
