@@ -125,6 +125,10 @@ class MapperConfig:
                                                   "640x480 is 40% at 320x240); off: the share at every size")
     init_opacity: float = _f(0.7, 0.01, 0.99)
     prune_opacity: float = _f(0.0, 0.0, 1.0, doc="drop splats below this opacity after a frame; 0: off")
+    replay: str = _f("uniform", choices=("uniform", "stale"),
+                     doc="how replayed frames are drawn from the earlier ones: uniform (the paper's random "
+                         "replay), or stale: with probability growing with the optimization calls since the "
+                         "frame was last trained")
     lr_means: float = _f(1e-4, 0.0, 1.0)
     lr_rotations: float = _f(1e-3, 0.0, 1.0)
     lr_scales: float = _f(1e-2, 0.0, 1.0, doc="Adam step of the log-scales; 1e-2 (with lr_opacities 0.1) beat "

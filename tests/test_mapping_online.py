@@ -65,6 +65,17 @@ def test_second_frame_adds_only_unseen_surface_and_replays(views):
     assert len(mapper.frames) == 2 and mapper.frames[0].depth_mm.dtype == torch.int16
     # splats of the first frame were trained by replay as well (K_replay steps on frame 0)
     assert int(mapper.map["adam_step"][created == 0].max()) > 4
+    # optimization calls: frame 0's K_new (1), its 3 self-replays (2-4), frame 1's K_new (5), 3 replays of 0
+    assert mapper.last_trained == [8, 5]
+
+
+def test_stale_replay_draws_frames_in_proportion_to_the_calls_since_their_training():
+    mapper = _mapper(replay="stale")
+    mapper.last_trained, mapper._clock = [1, 2, 50, 51], 51  # frame 3 is the one being added
+    picks = np.bincount([mapper._replay_pick(3) for _ in range(4000)], minlength=4)
+    expected = np.array([51, 50, 2, 0]) / 103  # weights 1 + 51 - last_trained over the earlier frames
+    assert np.abs(picks / 4000 - expected).max() < 0.03
+    assert picks[3] == 0
 
 
 def test_pruning_drops_transparent_splats_with_their_state(views):
