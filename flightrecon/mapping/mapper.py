@@ -30,7 +30,7 @@ log = logging.getLogger(__name__)
 
 TRAIN_OUTPUTS = ("features", "alpha", "depth", "normal", "distortion")
 _MIN_SCALE = 1e-3  # m; splats finer than a millimetre add nothing at our resolutions
-REFERENCE_PIXELS = 640 * 480  # the paper's image size, where init_subsample is 2DGS-SLAM's share
+REFERENCE_PIXELS = 640 * 480  # the paper's image size, where init_subsample is the share as given
 
 
 @dataclass
