@@ -8,8 +8,11 @@ the center to every waypoint is clear. Consecutive waypoints are joined by a str
 leg keeps the same clearance, otherwise through the center; the loop ends over the center. Legs are rest-to-rest moves within the
 planner's speed, acceleration, jerk and yaw limits. At every waypoint the drone settles (arrival
 detection) and captures HEADINGS frames, turning in equal steps from the outward heading (with 8,
-consecutive frames overlap by half a 90-degree field of view, so any one frame held out for evaluation
-is seen by its neighbours; the old 2, outward and back, left held-out views largely unseen). The
+consecutive frames overlap by half a 90-degree field of view, so a frame held out for evaluation is
+seen by its neighbours, except near the top and bottom of its central columns: a level camera turned
+by 45 degrees sees a point at elevation e only where tan(e) <= 0.53 (4:3 frames), the held-out one up to
+0.75, so nearby ceiling and floor there count on other waypoints, and 2.5% of office0's frame 44 is seen
+by no other frame; the old 2 headings, outward and back, left held-out views largely unseen). The
 frames go to an RGB-D dataset (flightrecon.dataset) with the flown trajectory.
 """
 
