@@ -55,6 +55,17 @@ constexpr double RHO_MARGIN = 1e-3;  // alpha margin exp(-5e-4): covers float er
 constexpr int NG = 11;           // per-pixel geometric gradient: T_u, T_v, T_w (9), means2d (2)
 constexpr int NSYM = NG * (NG + 1) / 2;
 
+// The image pixel of slot p of tile (tx, ty), and whether there is one: padding slots and slots past
+// the image's right or bottom edge are never read out or blended.
+struct SlotPixel {
+  int x, y;
+  bool in_image;
+};
+inline SlotPixel slot_pixel(int p, int tx, int ty, int W, int H) {
+  const int c = p % RS, r = p / RS, x = tx * TS + c, y = ty * TS + r;
+  return {x, y, c < TS && r < TS && x < W && y < H};
+}
+
 // One camera's projected splats (struct of arrays over all N splats, by SplatGroups position).
 // Only the splats of the groups that pass the camera's frustum test are written (project_camera);
 // the backward, which reads every splat's rect, does not cull.
@@ -695,10 +706,10 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
   for (int r = 0; r < TS; ++r) row_alive[r] = ty * TS + r < st.H;
   std::vector<S> accF(size_t(D) * TP, S(0)), accN(fl.normal ? 3 * TP : 0, S(0));
   for (int p = 0; p < TP; ++p) {
-    const int x = tx * TS + (p % RS), y = ty * TS + p / RS;
-    px[p] = S(x) + S(0.5);
-    py[p] = S(y) + S(0.5);
-    act[p] = (p % RS < TS && p / RS < TS && x < st.W && y < st.H) ? S(1) : S(0);
+    const SlotPixel sl = slot_pixel(p, tx, ty, st.W, st.H);
+    px[p] = S(sl.x) + S(0.5);
+    py[p] = S(sl.y) + S(0.5);
+    act[p] = sl.in_image ? S(1) : S(0);
     T[p] = S(1);
     accA[p] = accZ[p] = accM[p] = accM2[p] = medz[p] = w[p] = S(0);
     zz[p] = S(st.near);
@@ -711,10 +722,10 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
 #if FR_AVX2
   if constexpr (std::is_same<S, float>::value) {
     // The same per-pixel arithmetic as the generic loop below, in AVX2 registers: one group of 8
-    // pixels at a time (8 columns of a row, or 4 of two rows for a narrow box), its weights going straight into the accumulators (only the groups a
-    // splat covers are visited), the blend masks kept in registers instead of masked stores, and
-    // exp inline. Records are prefetched a few splats ahead (the tile lists them in depth order,
-    // scattered in memory).
+    // pixels at a time (8 columns of a row, or 4 of two rows for a narrow box), its weights going
+    // straight into the accumulators (only the groups a splat covers are visited), the blend masks
+    // kept in registers instead of masked stores, and exp inline. Records are prefetched a few
+    // splats ahead (the tile lists them in depth order, scattered in memory).
     uint32_t live[TS + 1] = {};  // per row, a bit for each pixel in the image not yet terminated
     int rows_alive = 0;
     for (int r = 0; r < TS; ++r) {
@@ -899,9 +910,9 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
     }
   }
   for (int p = 0; p < TP; ++p) {
-    const int x = tx * TS + (p % RS), y = ty * TS + p / RS;
-    if (p % RS >= TS || p / RS >= TS || x >= st.W || y >= st.H) continue;
-    const int64_t q = int64_t(y) * st.W + x;
+    const SlotPixel sl = slot_pixel(p, tx, ty, st.W, st.H);
+    if (!sl.in_image) continue;
+    const int64_t q = int64_t(sl.y) * st.W + sl.x;
     for (int d = 0; d < D; ++d) out.feat[q * D + d] = accF[size_t(d) * TP + p];
     out.alpha[q] = accA[p];
     if (fl.normal)
@@ -1236,16 +1247,16 @@ void backward_tile(int tile, const Bins<S>& B, int D, const Settings& st, const 
   std::vector<S> gF(size_t(D) * TP, S(0)), gN(3 * TP, S(0));
   int maxlast = 0;
   for (int p = 0; p < TP; ++p) {
-    const int x = tx * TS + (p % RS), y = ty * TS + p / RS;
-    px[p] = S(x) + S(0.5);
-    py[p] = S(y) + S(0.5);
+    const SlotPixel sl = slot_pixel(p, tx, ty, st.W, st.H);
+    px[p] = S(sl.x) + S(0.5);
+    py[p] = S(sl.y) + S(0.5);
     T[p] = S(1);
     Pre[p] = S(0);
     gA[p] = gZ[p] = gM[p] = gM2[p] = gMed[p] = Tot[p] = S(0);
     last[p] = 0;
     medj[p] = -1;
-    if (p % RS >= TS || p / RS >= TS || x >= st.W || y >= st.H) continue;
-    const int64_t q = int64_t(y) * st.W + x;
+    if (!sl.in_image) continue;
+    const int64_t q = int64_t(sl.y) * st.W + sl.x;
     S tot = 0;
     for (int d = 0; d < D; ++d) {
       gF[size_t(d) * TP + p] = in.gF[q * D + d];
