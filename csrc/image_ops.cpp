@@ -6,7 +6,9 @@
 // convolution spends ~1-2 ms per call on that. Each output row here is one vertical pass (taps over
 // rows, vectorized along the row) and one horizontal pass over it, so rows are independent:
 // parallel and deterministic. The depth normals were ~6.6 ms of CPU per iteration as a torch graph
-// (products, slices, a cross product, a normalization and their backward) at 320x240.
+// (products, slices, a cross product, a normalization and their backward) at 320x240. The normals
+// are computed in double whatever the depth's dtype: the cross product squares the depth, which
+// overflows float for depths above ~1e19 and underflows to subnormals below ~1e-19.
 #include <omp.h>
 
 #include <algorithm>
@@ -62,13 +64,14 @@ torch::Tensor blur_valid(torch::Tensor x, torch::Tensor taps) {
 constexpr double NORMAL_EPS = 1e-12;  // F.normalize's floor on the norm
 
 // Unnormalized normal c = dy x dx of the back-projected depth P = ray * depth at interior pixel (y, x)
-// of one [H, W] image, and the central differences it came from.
+// of one [H, W] image, and the central differences it came from, in double.
 template <typename S>
-inline void depth_cross(const S* d, const S* rays, int64_t W, int64_t y, int64_t x, S* dx, S* dy, S* c) {
+inline void depth_cross(const S* d, const S* rays, int64_t W, int64_t y, int64_t x, double* dx, double* dy,
+                        double* c) {
   const int64_t l = y * W + x - 1, r = y * W + x + 1, u = (y - 1) * W + x, b = (y + 1) * W + x;
   for (int k = 0; k < 3; ++k) {
-    dx[k] = rays[3 * r + k] * d[r] - rays[3 * l + k] * d[l];
-    dy[k] = rays[3 * b + k] * d[b] - rays[3 * u + k] * d[u];
+    dx[k] = double(rays[3 * r + k]) * d[r] - double(rays[3 * l + k]) * d[l];
+    dy[k] = double(rays[3 * b + k]) * d[b] - double(rays[3 * u + k]) * d[u];
   }
   c[0] = dy[1] * dx[2] - dy[2] * dx[1];
   c[1] = dy[2] * dx[0] - dy[0] * dx[2];
@@ -85,10 +88,10 @@ void normals_forward(const S* depth, const S* rays, int64_t B, int64_t H, int64_
     std::fill(o, o + W * 3, S(0));
     if (y == 0 || y == H - 1) continue;
     for (int64_t x = 1; x < W - 1; ++x) {
-      S dx[3], dy[3], c[3];
+      double dx[3], dy[3], c[3];
       depth_cross(d, rays, W, y, x, dx, dy, c);
-      const S inv = S(1) / std::max(std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]), S(NORMAL_EPS));
-      for (int k = 0; k < 3; ++k) o[3 * x + k] = c[k] * inv;
+      const double inv = 1.0 / std::max(std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]), NORMAL_EPS);
+      for (int k = 0; k < 3; ++k) o[3 * x + k] = S(c[k] * inv);
     }
   }
 }
@@ -98,27 +101,27 @@ void normals_forward(const S* depth, const S* rays, int64_t B, int64_t H, int64_
 // differences it entered (+ for the right/lower neighbour's, - for the left/upper one's) along its ray.
 template <typename S>
 void normals_backward(const S* depth, const S* rays, const S* gn, int64_t B, int64_t H, int64_t W, S* gdepth) {
-  std::vector<S> gdx(size_t(B * H * W) * 3, S(0)), gdy(size_t(B * H * W) * 3, S(0));
+  std::vector<double> gdx(size_t(B * H * W) * 3, 0.0), gdy(size_t(B * H * W) * 3, 0.0);
 #pragma omp parallel for schedule(static)
   for (int64_t row = 0; row < B * H; ++row) {
     const int64_t bi = row / H, y = row % H;
     if (y == 0 || y == H - 1) continue;
     const S* d = depth + bi * H * W;
     for (int64_t x = 1; x < W - 1; ++x) {
-      S dx[3], dy[3], c[3];
+      double dx[3], dy[3], c[3];
       depth_cross(d, rays, W, y, x, dx, dy, c);
-      const S norm = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
+      const double norm = std::sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]);
       const S* g = gn + (row * W + x) * 3;
-      S gc[3];
-      if (norm > S(NORMAL_EPS)) {
-        const S inv = S(1) / norm;
-        const S dot = (c[0] * g[0] + c[1] * g[1] + c[2] * g[2]) * inv;
+      double gc[3];
+      if (norm > NORMAL_EPS) {
+        const double inv = 1.0 / norm;
+        const double dot = (c[0] * g[0] + c[1] * g[1] + c[2] * g[2]) * inv;
         for (int k = 0; k < 3; ++k) gc[k] = (g[k] - c[k] * inv * dot) * inv;
       } else {
-        for (int k = 0; k < 3; ++k) gc[k] = g[k] / S(NORMAL_EPS);
+        for (int k = 0; k < 3; ++k) gc[k] = g[k] / NORMAL_EPS;
       }
-      S* ox = &gdx[(row * W + x) * 3];
-      S* oy = &gdy[(row * W + x) * 3];
+      double* ox = &gdx[(row * W + x) * 3];
+      double* oy = &gdy[(row * W + x) * 3];
       // c = dy x dx: d/d(dy) = dx x gc, d/d(dx) = gc x dy
       oy[0] = dx[1] * gc[2] - dx[2] * gc[1];
       oy[1] = dx[2] * gc[0] - dx[0] * gc[2];
@@ -132,7 +135,7 @@ void normals_backward(const S* depth, const S* rays, const S* gn, int64_t B, int
   for (int64_t row = 0; row < B * H; ++row) {
     const int64_t y = row % H;
     for (int64_t x = 0; x < W; ++x) {
-      S gp[3] = {0, 0, 0};
+      double gp[3] = {0, 0, 0};
       const int64_t q = row * W + x;
       for (int k = 0; k < 3; ++k) {
         if (x > 0) gp[k] += gdx[3 * (q - 1) + k];
@@ -141,7 +144,7 @@ void normals_backward(const S* depth, const S* rays, const S* gn, int64_t B, int
         if (y < H - 1) gp[k] -= gdy[3 * (q + W) + k];
       }
       const S* ray = rays + 3 * (y * W + x);
-      gdepth[q] = ray[0] * gp[0] + ray[1] * gp[1] + ray[2] * gp[2];
+      gdepth[q] = S(ray[0] * gp[0] + ray[1] * gp[1] + ray[2] * gp[2]);
     }
   }
 }

@@ -5,8 +5,12 @@
 // arrays (gradient, moments, values), updated by one loop per component over the whole block and
 // copied back. The update loops always run over all kBlock lanes (a short last block is padded with
 // zeros), so every element takes the same vector code path and its rounding does not depend on its
-// position in `visible` (with -ffast-math GCC's vector sqrt and division differ from the scalar
-// ones in the last bit). Blocks are independent, so they run in parallel; rows must be unique.
+// position in `visible`. Blocks are independent, so they run in parallel; rows must be unique.
+//
+// The update is computed in double and rounded to float once: a float g * g overflows for
+// |g| > 1.8e19 (the step would then be 0 instead of ~lr) and underflows to subnormals for |g| < 1e-19,
+// where flush-to-zero and approximate square roots turn 0 / (sqrt(0) + eps) into NaN. In double the
+// result equals a float64 Adam's for every finite float gradient whose moments fit a float.
 
 #include "bindings.h"
 
@@ -33,14 +37,14 @@ struct Param {
 };
 
 struct Coeffs {
-  float b1, b2, a1, a2, eps;
+  double b1, b2, a1, a2, eps;
 };
 
 // One block of rows of a parameter: copied into component-major arrays, updated over all kBlock
 // lanes, copied back. The copies stay scalar loops over the runtime C: a compile-time C lets GCC
 // turn them into AVX-512 gathers, which made the step 40% slower on the EPYC it was measured on.
 void update_block(const Param& p, int64_t cnt, const int64_t* local, const int64_t* global,
-                  const float* step_size, const float* bc2_sqrt, const Coeffs& k) {
+                  const double* step_size, const double* bc2_sqrt, const Coeffs& k) {
   const int64_t C = p.C;
   alignas(64) float g[kMaxComponents][kBlock], m[kMaxComponents][kBlock], v[kMaxComponents][kBlock],
       x[kMaxComponents][kBlock];
@@ -58,14 +62,16 @@ void update_block(const Param& p, int64_t cnt, const int64_t* local, const int64
     float* mc = m[c];
     float* vc = v[c];
     float* xc = x[c];
+    const double lr = p.lr;
 #pragma omp simd
     for (int64_t i = 0; i < kBlock; ++i) {
-      const float mi = k.b1 * mc[i] + k.a1 * gc[i];
-      const float vi = k.b2 * vc[i] + k.a2 * gc[i] * gc[i];
-      mc[i] = mi;
-      vc[i] = vi;
-      const float denom = std::sqrt(vi) / bc2_sqrt[i] + k.eps;
-      xc[i] -= p.lr * (mi * step_size[i] / denom);
+      const double gi = gc[i];
+      const double mi = k.b1 * mc[i] + k.a1 * gi;
+      const double vi = k.b2 * vc[i] + k.a2 * gi * gi;
+      mc[i] = float(mi);
+      vc[i] = float(vi);
+      const double denom = std::sqrt(vi) / bc2_sqrt[i] + k.eps;
+      xc[i] = float(xc[i] - lr * (mi * step_size[i] / denom));
     }
   }
   for (int64_t i = 0; i < cnt; ++i) {
@@ -80,8 +86,7 @@ void update_block(const Param& p, int64_t cnt, const int64_t* local, const int64
 // The step of the n leaf rows vis[] (map rows map_row[vis[i]], or vis[i] when map_row is null).
 void adam_rows(const std::vector<Param>& params, int32_t* step, const int64_t* vis, int64_t n,
                const int64_t* map_row, double beta1, double beta2, double eps) {
-  // 1 - 0.999f is 1.3e-5 off 0.001, so the coefficients are rounded from double
-  const Coeffs k{float(beta1), float(beta2), float(1.0 - beta1), float(1.0 - beta2), float(eps)};
+  const Coeffs k{beta1, beta2, 1.0 - beta1, 1.0 - beta2, eps};
   const double log_b1 = std::log(beta1), log_b2 = std::log(beta2);
   const int64_t blocks = (n + kBlock - 1) / kBlock;
 #pragma omp parallel for schedule(static)
@@ -89,19 +94,19 @@ void adam_rows(const std::vector<Param>& params, int32_t* step, const int64_t* v
     const int64_t i0 = b * kBlock, cnt = std::min(kBlock, n - i0);
     int64_t local[kBlock], global[kBlock];
     alignas(64) double t[kBlock];
-    alignas(64) float step_size[kBlock], bc2_sqrt[kBlock];
+    alignas(64) double step_size[kBlock], bc2_sqrt[kBlock];
     for (int64_t i = 0; i < cnt; ++i) {
       local[i] = vis[i0 + i];
       global[i] = map_row ? map_row[local[i]] : local[i];
       t[i] = double(++step[global[i]]);
     }
     for (int64_t i = cnt; i < kBlock; ++i) t[i] = 1.0;
-    // 1 - beta^t as -expm1(t log beta), in double: 1 - 0.999^t in float loses ~5 digits to
-    // cancellation for young splats; the vector expm1 also costs about half the vector pow
+    // 1 - beta^t as -expm1(t log beta): 1 - 0.999^t loses ~5 digits to cancellation in float
+    // for young splats; the vector expm1 also costs about half the vector pow
 #pragma omp simd
     for (int64_t i = 0; i < kBlock; ++i) {
-      step_size[i] = float(-1.0 / std::expm1(t[i] * log_b1));  // 1 / bias correction 1
-      bc2_sqrt[i] = float(std::sqrt(-std::expm1(t[i] * log_b2)));
+      step_size[i] = -1.0 / std::expm1(t[i] * log_b1);  // 1 / bias correction 1
+      bc2_sqrt[i] = std::sqrt(-std::expm1(t[i] * log_b2));
     }
     for (const Param& p : params) {
       update_block(p, cnt, local, global, step_size, bc2_sqrt, k);

@@ -138,3 +138,49 @@ def test_sparse_adam_step_equals_a_per_splat_adam(path, gathered):
     for k in gmap._cols:  # every column of a row never updated is bit for bit what it was
         assert torch.equal(gmap[k][~touched], before[k][~touched]), k
     np.testing.assert_array_equal(gmap["means"][at[zero]].numpy(), before["means"][at[zero]].numpy())
+
+
+EDGE_GRADS = [0.0, 1e-40, -1e-40, 1e-20, -1e-20, 1e-5, -3.0, 1e20, -1e20]
+
+
+@pytest.mark.parametrize("path", ["kernel", "torch"])
+def test_sparse_adam_is_finite_and_exact_on_edge_gradients(path):
+    """Fresh splats (step count 0, zero moments) and older ones, with zero, subnormal (1e-40), tiny
+    (1e-20) and huge (1e20) gradients: three steps give finite values equal to a float64 Adam. A
+    float g * g underflows or overflows at these, and with -ffast-math on an AVX2-only CPU the first
+    step of a fresh splat with g = 1e-20 was NaN."""
+    gmap = GaussianMap()
+    lrs = {"means": 1e-2, "quats": 1e-3, "log_scales": 5e-3, "opacity_logits": 5e-2, "colors": 2.5e-3}
+    adam = SparseAdam(gmap, lrs)
+    n = 2 * len(EDGE_GRADS)  # each gradient on a fresh splat and on one 40 steps old
+    gmap.append(frame=0, **_params(n, 7))
+    old = torch.arange(n) >= len(EDGE_GRADS)
+    gmap["adam_step"][old] = 40
+    for name in PARAM_SHAPES:
+        gmap[f"adam_m.{name}"][old] = 1e-3
+        gmap[f"adam_v.{name}"][old] = 1e-6
+    grads = torch.tensor(EDGE_GRADS * 2, dtype=torch.float32)
+    expect = {k: gmap[k].clone() for k in gmap._cols}
+    visible = torch.arange(n)
+    for _ in range(3):
+        leaves = adam.leaves()
+        for name, p in leaves.items():
+            p.grad = grads.view((-1,) + (1,) * (p.dim() - 1)).expand(p.shape).contiguous()
+        expect["adam_step"] += 1
+        for name, p in leaves.items():
+            new_p, new_m, new_v = _adam_reference(expect[name], p.grad, expect[f"adam_m.{name}"],
+                                                  expect[f"adam_v.{name}"], expect["adam_step"], lrs[name])
+            expect[name], expect[f"adam_m.{name}"], expect[f"adam_v.{name}"] = (
+                new_p.float(), new_m.float(), new_v.float())
+        if path == "kernel":
+            adam.step(leaves, visible)
+        else:
+            adam._step_torch(leaves, visible, None)
+            for p in leaves.values():
+                p.grad = None
+    for k in gmap._cols:  # atol: one step of float32's subnormals (float ops round moments ~1e-41 there)
+        assert torch.isfinite(gmap[k].float()).all(), k
+        np.testing.assert_allclose(gmap[k].numpy(), expect[k].numpy(), rtol=1e-6, atol=1.5e-45, err_msg=k)
+    moved = (gmap["means"] - _params(n, 7)["means"]).abs().amax(1)
+    huge = grads.abs() == 1e20
+    assert (moved[huge] > 0.5 * lrs["means"]).all()  # a huge gradient still moves a splat by ~lr

@@ -1,14 +1,27 @@
-"""JIT build and load of the C++ rasterizer (csrc/), cached by source hash.
+"""JIT build and load of the C++ rasterizer (csrc/), cached by source, flags and CPU.
 
 The build directory is $FLIGHTRECON_CACHE/ext/<hash> (default ~/.cache/flightrecon/ext/<hash>), so
-an edited source rebuilds and an unchanged one loads in milliseconds. torch's cpp_extension needs a
-C++ compiler and ninja; their absence is reported as one FlightReconError naming what is missing.
+an edited source rebuilds and an unchanged one loads in milliseconds. The hash covers the sources,
+the compiler flags, torch's version and the CPU's instruction-set features: `-march=native` code
+built on one CPU may not run (or may round differently) on another, so a home folder shared
+between machines never loads a build made for another CPU.
+
+No `-ffast-math`: it lets GCC flush subnormals to zero and compute sqrt through an approximate
+reciprocal square root, which turned zero second moments of the Adam step into NaN on AVX2-only
+CPUs while AVX-512 CPUs (another code path) passed. Results must not depend on the CPU.
+$FLIGHTRECON_EXT_CFLAGS appends flags, e.g. `-mno-avx512f` to build and test on an AVX-512 host
+the code an AVX2-only CPU runs.
+
+torch's cpp_extension needs a C++ compiler and ninja; their absence is reported as one
+FlightReconError naming what is missing.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import platform
+import shlex
 import shutil
 from functools import lru_cache
 from pathlib import Path
@@ -19,7 +32,8 @@ CSRC = Path(__file__).resolve().parents[2] / "csrc"
 SOURCES = [CSRC / name for name in (
     "module.cpp", "rasterize.cpp", "splat_axes.cpp", "optimizer.cpp", "image_ops.cpp")]
 HEADERS = [CSRC / "bindings.h"]
-CFLAGS = ["-O3", "-march=native", "-ffast-math", "-fopenmp", "-std=c++17"]
+CFLAGS = ["-O3", "-march=native", "-fopenmp", "-std=c++17"]
+EXTRA_CFLAGS_ENV = "FLIGHTRECON_EXT_CFLAGS"
 
 
 def cache_dir() -> Path:
@@ -27,11 +41,30 @@ def cache_dir() -> Path:
     return Path(root) / "ext"
 
 
+def cflags() -> list[str]:
+    """The compiler flags of this build: CFLAGS, then those of $FLIGHTRECON_EXT_CFLAGS."""
+    return CFLAGS + shlex.split(os.environ.get(EXTRA_CFLAGS_ENV, ""))
+
+
+def cpu_features() -> str:
+    """The CPU's model-independent identity for `-march=native`: its instruction-set flags (Linux),
+    else what the platform reports."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith(("flags", "Features")):
+                    return platform.machine() + ":" + " ".join(sorted(line.split(":", 1)[1].split()))
+    except OSError:
+        pass
+    return f"{platform.machine()}:{platform.processor()}"
+
+
 def source_hash() -> str:
     h = hashlib.sha256()
     for src in SOURCES + HEADERS:
         h.update(src.read_bytes())
-    h.update(" ".join(CFLAGS).encode())
+    h.update(" ".join(cflags()).encode())
+    h.update(cpu_features().encode())
     import torch
     h.update(torch.__version__.encode())
     return h.hexdigest()[:16]
@@ -70,7 +103,7 @@ def load(verbose: bool = False):
     build.mkdir(parents=True, exist_ok=True)
     try:
         return cpp_extension.load(name="flightrecon_raster", sources=[str(s) for s in SOURCES],
-                                  extra_cflags=CFLAGS, extra_ldflags=["-fopenmp"],
+                                  extra_cflags=cflags(), extra_ldflags=["-fopenmp"],
                                   build_directory=str(build), verbose=verbose)
     except (RuntimeError, OSError) as exc:
         raise FlightReconError(f"building the C++ rasterizer in {build} failed: {exc}") from exc

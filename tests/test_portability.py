@@ -1,0 +1,62 @@
+"""Results that do not depend on the CPU: the extension's cache key, the README demo's first frames,
+and, on an AVX-512 host, the kernels built and tested once without AVX-512 (the code an AVX2-only
+CPU runs, where the -ffast-math build once turned fresh splats' quaternions into NaN)."""
+
+from __future__ import annotations
+
+import csv
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from flightrecon.mapping.ply import load_map
+from flightrecon.render import extension
+
+ROOT = Path(__file__).resolve().parents[1]
+KERNEL_TESTS = ["tests/test_render.py", "tests/test_mapping_store.py", "tests/test_mapping_metrics.py",
+                "tests/test_mapping_online.py"]
+
+
+def test_cache_key_names_the_cpu_and_the_flags(monkeypatch):
+    monkeypatch.delenv(extension.EXTRA_CFLAGS_ENV, raising=False)
+    base = extension.source_hash()
+    assert "-ffast-math" not in extension.cflags()
+    monkeypatch.setattr(extension, "cpu_features", lambda: "x86_64:avx avx2 fma sse4_2")
+    other_cpu = extension.source_hash()
+    monkeypatch.setenv(extension.EXTRA_CFLAGS_ENV, "-mno-avx512f")
+    assert extension.cflags()[-1] == "-mno-avx512f"
+    other_flags = extension.source_hash()
+    assert len({base, other_cpu, other_flags}) == 3
+
+
+def _fly_demo(out: Path, env: dict, frames: int = 6) -> None:
+    """The README demo's settings for `frames` frames through the CLI: it must finish, with every
+    map column finite (load_map rejects NaN) and a planned move after the initial turns."""
+    p = subprocess.run([sys.executable, "-m", "flightrecon.cli", "fly", "demo", "--quiet", "--no-record",
+                        "--set", f"budget.frames={frames}", "--out", str(out)],
+                       cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
+    assert p.returncode == 0, p.stdout + p.stderr
+    load_map(out / "map.ply")
+    with open(out / "frames.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == frames
+    assert float(rows[-2]["flight_distance"]) > 0.1, "the drone never left its take-off point"
+
+
+@pytest.mark.slow
+def test_demo_first_frames_fly_nan_free(tmp_path):
+    _fly_demo(tmp_path / "run", dict(os.environ))
+
+
+@pytest.mark.slow
+@pytest.mark.skipif("avx512f" not in extension.cpu_features().split(),
+                    reason="no AVX-512 on this host: the main build already is the AVX2 code")
+def test_kernels_and_demo_without_avx512(tmp_path):
+    env = dict(os.environ, **{extension.EXTRA_CFLAGS_ENV: "-mno-avx512f"})
+    p = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *KERNEL_TESTS],
+                       cwd=ROOT, env=env, capture_output=True, text=True, timeout=1800)
+    assert p.returncode == 0, p.stdout[-4000:] + p.stderr[-2000:]
+    _fly_demo(tmp_path / "run", env)
