@@ -107,6 +107,8 @@ class PlannerConfig:
     ompl_time_limit: float = _f(1.0, 0.001, 60.0, doc="s; safety cap per OMPL query")
     hover_free_radius: float = _f(0.6, 0.0, 5.0, doc="m; never-seen space this close to where the drone "
                                   "hovered is assumed free (the camera's blind cones above and below)")
+    max_height: float = _f(2.7, 0.5, 100.0, doc="m above the detected floor: the top of the flight workspace "
+                           "where the scene has no ceiling (open scans whose walls end low)")
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ import math
 import pickle
 import time
 from collections import Counter
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,7 +33,7 @@ from flightrecon.active.selectors import Observation, make_selector
 from flightrecon.config import ScenarioConfig, load_config, to_toml
 from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import write_trajectory_csv
-from flightrecon.errors import FlightReconError
+from flightrecon.errors import DataError, FlightReconError
 from flightrecon.evaluation.run_eval import SNAPSHOTS
 from flightrecon.evaluation.views import EvaluationSet
 from flightrecon.fileio import atomic_path, write_json, write_text
@@ -73,13 +74,14 @@ class MissionState:
     flight_distance: float = 0.0
     wall_time: float = 0.0
     reliable_ema: float = 0.0  # GauSS-MI's stopping statistic (see `_update_stopping`)
+    told_no_room: bool = False  # the user was told the drone cannot leave its take-off point
 
 
 def flight_region(scene, cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
     """(workspace box (2,3) for candidates, take-off point): the planner's workspace of the scene,
     shrunk by the drone's required clearance, and the hover point above its spawn."""
     pad = cfg.drone.body_radius + cfg.planner.safety_margin
-    work = workspace_of(scene) + np.array([[pad], [-pad]])
+    work = workspace_of(scene, cfg.planner.max_height) + np.array([[pad], [-pad]])
     return work, start_position(scene, cfg.sim.takeoff_height)
 
 
@@ -172,20 +174,25 @@ class Mission:
         row["sim_time"] = self.flight.time
 
         t = time.perf_counter()
-        self.mapper.add_frame(rgb, depth, self.K, T_wc)
+        with self._stage("mapping"):
+            self.mapper.add_frame(rgb, depth, self.K, T_wc)
+            self.mapper.map.check_finite()
         row["t_map"] = time.perf_counter() - t
         t = time.perf_counter()
-        self.selector.observe(self.mapper, obs)
+        with self._stage("selector update"):
+            self.selector.observe(self.mapper, obs)
         row["t_select_update"] = time.perf_counter() - t
         row["reliable_share_ema"] = self._update_stopping()
         row["n_splats"] = len(self.mapper.map)
-        row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(self.mapper, obs)
+        with self._stage("frame quality"):
+            row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(self.mapper, obs)
         self.recorder.capture(obs)
         self.planner.integrate(depth, self.K, T_wc, body_position=body.position)
 
         every = cfg.evaluation.every
         if last or (every > 0 and self.state.frame % every == 0):
-            q = self.evaluation.evaluate(self.mapper)
+            with self._stage("evaluation"):
+                q = self.evaluation.evaluate(self.mapper)
             row["eval_psnr"], row["eval_depth_l1_cm"] = q["psnr"], q["depth_l1_cm"]
             if cfg.evaluation.snapshots and not last:  # mesh metrics need a TSDF: `eval` scores them later
                 save_map(self.mapper.map, self.run_dir / SNAPSHOTS / f"map_{self.state.frame:05d}.ply")
@@ -193,6 +200,15 @@ class Mission:
             return row
         self._choose_and_fly(row)
         return row
+
+    @contextmanager
+    def _stage(self, name: str):
+        """Name the frame and the stage in a data error raised inside (a NaN in the map, say)."""
+        try:
+            yield
+        except DataError as exc:
+            raise DataError(f"frame {self.state.frame}, stage {name}: {exc} (run folder {self.run_dir} keeps "
+                            "the frames before it)") from None
 
     def _update_stopping(self) -> float:
         """GauSS-MI's stopping statistic: an exponential moving average (0.95) of the share of splats
@@ -223,7 +239,8 @@ class Mission:
             chosen, row["chosen_score"] = feasible[0], math.nan
         elif feasible:
             lengths = np.array([r.length for r in feasible])
-            scores = np.asarray(self.selector.score(self.mapper, self.candidate_poses(feasible), lengths), float)
+            with self._stage("scoring"):
+                scores = np.asarray(self.selector.score(self.mapper, self.candidate_poses(feasible), lengths), float)
             best = int(np.argmax(scores))
             chosen, row["chosen_score"] = feasible[best], float(scores[best])
         row["t_score"] = time.perf_counter() - t
@@ -275,7 +292,23 @@ class Mission:
                     return r
         row["recovery"] = "hover"
         self._event(f"frame {self.state.frame}: no feasible candidate or recovery ({reasons}); hovering")
+        if self.state.flight_distance == 0.0 and not self.state.told_no_room:
+            self._tell_no_room(reasons)
         return None
+
+    def _tell_no_room(self, reasons: dict) -> None:
+        """Once per run: the drone has not moved and nothing around it is feasible, which is almost
+        always a workspace that leaves it no room (an open scan, a wrong up axis or unit scale)."""
+        self.state.told_no_room = True
+        lo, hi = (np.round(b, 2).tolist() for b in self.workspace)
+        text = (f"frame {self.state.frame}: the drone cannot leave its take-off point "
+                f"{np.round(self.start, 2).tolist()}: no candidate or recovery is feasible ({reasons}). "
+                f"Candidates must lie in the workspace {lo} .. {hi} (the scene's floor to its ceiling, or "
+                f"planner.max_height above the floor without one, shrunk by the clearance "
+                f"{self.planner.settings.required_clearance:.2f} m). Change planner.max_height, "
+                "sim.takeoff_height, planner.safety_margin or drone.body_radius, or check scene.up_axis "
+                "and scene.unit_scale (`flightrecon scene info` shows the floor, ceiling and workspace)")
+        self._event(text, logging.WARNING)
 
     def candidate_poses(self, results: list[CandidateResult]) -> np.ndarray:
         """Camera T_wc [C,4,4] the drone would have at each candidate (body at rest, level)."""
@@ -283,8 +316,8 @@ class Mission:
         return np.stack([camera_pose_from_body(make_pose(rot_z(r.yaw), r.position), self.cam_offset, pitch)
                          for r in results])
 
-    def _event(self, text: str) -> None:
-        log.info(text)
+    def _event(self, text: str, level: int = logging.INFO) -> None:
+        log.log(level, text)
         self.state.events.append(text)
         self.recorder.event(text)
 

@@ -110,3 +110,21 @@ def test_unknown_method_names_the_key():
 
     with pytest.raises(FlightReconError, match="selector.method"):
         make_selector(load_config("demo", ["selector.method=nope"]))
+
+
+@pytest.mark.slow
+def test_a_non_finite_map_names_the_frame_the_stage_and_the_column(tmp_path):
+    from flightrecon.errors import DataError
+
+    cfg = load_config("demo", TINY + ["budget.frames=3", "budget.initial_views=3"])
+    mission = Mission(cfg, tmp_path, progress=False)
+    mission._take_off()
+    mission._step(last=False)
+    mission.state.frame = 1
+    mission.mapper.map["quats"][7] = float("nan")
+    with pytest.raises(DataError, match=r"^frame 1, stage mapping: render: quats contains NaN or inf"):
+        mission._step(last=False)
+    mission.mapper.map["quats"][7] = 1.0
+    mission.mapper.map["reliability"][4, 1] = float("inf")
+    with pytest.raises(DataError, match=r"map column 'reliability' holds NaN or inf at 1 of \d+ splats \(first: splat 4\)"):
+        mission.mapper.map.check_finite()

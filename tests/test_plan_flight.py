@@ -97,7 +97,7 @@ def test_steps_planned_on_the_online_map_keep_clear_of_the_true_scene():
 
     cfg = load_config(None, ["scene.name=room0", "camera.width=160", "camera.height=120"])
     scene = procedural_scene("room0", 0)
-    ws = workspace_of(scene)
+    ws = workspace_of(scene, 2.7)
     start = start_position(scene, cfg.sim.takeoff_height)
     planner = Planner(cfg, ws, start_position=start)  # online occupancy map
     truth = DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size, ws + np.array([[-0.5], [0.5]]),

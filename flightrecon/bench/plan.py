@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> dict:
     for name in [s.strip() for s in args.scenes.split(",") if s.strip()]:
         cfg = load_config(None, [f"scene.name={name}"])
         scene = procedural_scene(name, cfg.scene.seed)
-        ws = workspace_of(scene)
+        ws = workspace_of(scene, cfg.planner.max_height)
         start = start_position(scene, cfg.sim.takeoff_height)
         t0 = time.perf_counter()
         gt = Planner(load_config(None, [f"scene.name={name}", "planner.use_ground_truth=true"]), ws,

@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     libs = {lib: load_library(lib) for lib in libraries}
     out = Path(args.out) if args.out else Path(base.output.run_root) / base.name / "plan-study"
     scene = scene_from_config(base.scene)
-    ws = workspace_of(scene)
+    ws = workspace_of(scene, base.planner.max_height)
     start = start_position(scene, base.sim.takeoff_height)
     print(f"plan-study: {scene.name}, {len(combos)} combinations x {args.poses} poses", flush=True)
     field = DistanceField.from_mesh(scene.trimesh, base.planner.voxel_size,

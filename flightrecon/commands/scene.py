@@ -25,6 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     info = ssub.add_parser("info", help="counts, bounds, up axis, colors/texture, free volume of a scene")
     _scene_args(info)
     info.add_argument("--json", action="store_true", help="print JSON instead of text")
+    info.add_argument("--max-height", type=float, default=None,
+                      help="planner.max_height: workspace top above the floor where there is no ceiling (m)")
     info.set_defaults(func=_info)
 
     tour = ssub.add_parser("tour", help="render RGB-D views from the scene's center to PNG files")
@@ -68,9 +70,18 @@ def _make(args) -> int:
 
 
 def _info(args) -> int:
+    from flightrecon.config import load_config
+    from flightrecon.planning.feasibility import PlanningSettings
+    from flightrecon.planning.poses import workspace_of
     from flightrecon.scene.stats import summary
 
-    s = summary(_load(args))
+    scene = _load(args)
+    s = summary(scene)
+    cfg = load_config(None, [] if args.max_height is None else [f"planner.max_height={args.max_height}"])
+    work = workspace_of(scene, cfg.planner.max_height)
+    s["workspace_min"], s["workspace_max"] = ([round(float(x), 3) for x in b] for b in work)
+    s["required_clearance"] = PlanningSettings.from_config(cfg).required_clearance
+    s["max_height"] = cfg.planner.max_height
     if args.json:
         print(json.dumps(s, indent=2))
         return 0
@@ -89,6 +100,11 @@ def _info(args) -> int:
         print("free volume  none enclosed: the surface is open to the outside")
     if "free_box" in s:
         print(f"free box     {s['free_box']}  (take-off column kept clear)")
+    ceiling = (f"{s['ceiling_z']:.3f}" if s["ceiling_z"] is not None
+               else f"none (workspace capped at planner.max_height {s['max_height']} m above the floor)")
+    print(f"floor (m)    {s['floor_z']:.3f}   ceiling {ceiling}   (from {s['levels_from']})")
+    print(f"workspace    min {s['workspace_min']}  max {s['workspace_max']}  (candidates keep "
+          f"{s['required_clearance']:.2f} m inside it)")
     return 0
 
 

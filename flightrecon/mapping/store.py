@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import torch
 
+from flightrecon.errors import DataError
+
 # Trainable splat parameters (design.md): name -> trailing shape.
 PARAM_SHAPES: dict[str, tuple[int, ...]] = {
     "means": (3,),
@@ -51,6 +53,15 @@ class GaussianMap:
 
     def __contains__(self, name: str) -> bool:
         return name in self._cols
+
+    def check_finite(self) -> None:
+        """Raise a DataError naming the first float column that holds NaN or inf, and where."""
+        for name, col in self._cols.items():
+            live = col[: self._n]
+            if live.is_floating_point() and not bool(torch.isfinite(live.sum())) and not bool(torch.isfinite(live).all()):
+                bad = ~torch.isfinite(live).reshape(self._n, -1).all(dim=1)
+                raise DataError(f"map column {name!r} holds NaN or inf at {int(bad.sum())} of {self._n} splats "
+                                f"(first: splat {int(bad.nonzero()[0, 0])})")
 
     def add_column(self, name: str, shape: tuple[int, ...], dtype: torch.dtype, fill: float = 0.0) -> None:
         """Register a per-splat array (e.g. an optimizer moment); existing rows get `fill`."""

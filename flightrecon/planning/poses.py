@@ -6,12 +6,21 @@ from __future__ import annotations
 import numpy as np
 
 from flightrecon.planning.distance_field import DistanceField
+from flightrecon.scene.levels import scene_levels
 
 
-def workspace_of(scene) -> np.ndarray:
-    """(2, 3) box the candidates must lie in: the room box of a procedural scene, else the mesh bounds."""
+def workspace_of(scene, max_height: float) -> np.ndarray:
+    """(2, 3) box the candidates must lie in: the room box of a procedural scene; else the mesh's
+    horizontal extent from its floor up to its ceiling, or `max_height` above the floor where the
+    scene has no ceiling (open scans: their bounds end at the top of the walls)."""
     box = scene.meta.get("room_box") if scene.meta else None
-    return np.asarray(box if box is not None else scene.bounds, float)
+    if box is not None:
+        return np.asarray(box, float)
+    levels = scene_levels(scene)
+    work = np.array(scene.bounds, float)
+    work[0, 2] = levels.floor_z
+    work[1, 2] = levels.ceiling_z if levels.ceiling_z is not None else levels.floor_z + max_height
+    return work
 
 
 def start_position(scene, takeoff_height: float) -> np.ndarray:
@@ -20,7 +29,7 @@ def start_position(scene, takeoff_height: float) -> np.ndarray:
     spawn = scene.meta.get("spawn") if scene.meta else None
     if spawn is None:
         lo, hi = scene.bounds
-        spawn = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]]
+        spawn = [(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, scene_levels(scene).floor_z]
     return np.asarray(spawn, float) + np.array([0.0, 0.0, takeoff_height])
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from scipy import ndimage
 
 from flightrecon.scene.collision import surface_voxels
+from flightrecon.scene.levels import scene_levels
 from flightrecon.scene.types import Scene
 
 
@@ -31,7 +32,8 @@ def free_space(scene: Scene, pitch: float = 0.1) -> dict:
 
 
 def summary(scene: Scene, with_free_space: bool = True) -> dict:
-    """Counts, bounds (m), size, up axis of the file, appearance and (optionally) free volume."""
+    """Counts, bounds (m), size, up axis of the file, appearance, floor and ceiling heights (None: no
+    ceiling) and (optionally) free volume."""
     lo, hi = scene.bounds
     out = {
         "name": scene.name,
@@ -49,7 +51,11 @@ def summary(scene: Scene, with_free_space: bool = True) -> dict:
     }
     if scene.appearance == "texture":
         out["texture_size"] = [int(scene.texture.shape[1]), int(scene.texture.shape[0])]
-    for key in ("kind", "floor_z", "ceiling_z", "free_box", "spawn"):
+    levels = scene_levels(scene)
+    out["floor_z"] = round(levels.floor_z, 4)
+    out["ceiling_z"] = None if levels.ceiling_z is None else round(levels.ceiling_z, 4)
+    out["levels_from"] = levels.source
+    for key in ("kind", "free_box", "spawn"):
         if key in scene.meta:
             out[key] = scene.meta[key]
     if with_free_space:
