@@ -23,7 +23,20 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         importlib.import_module(f"{commands.__name__}.{info.name}").register(sub)
+    _debug_after_subcommands(parser)
     return parser
+
+
+def _debug_after_subcommands(parser: argparse.ArgumentParser) -> None:
+    """Accept --debug after any (nested) subcommand too: `flightrecon fly demo --debug`. SUPPRESS
+    keeps a subcommand from resetting a --debug given before it."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                if "--debug" not in child._option_string_actions:
+                    child.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                                       help="show tracebacks for user errors")
+                _debug_after_subcommands(child)
 
 
 def main(argv: list[str] | None = None) -> int:

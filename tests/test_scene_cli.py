@@ -50,3 +50,11 @@ def test_tour_writes_rgbd_views(tmp_path):
 def test_unknown_scene_name_is_a_user_error(tmp_path, capsys):
     assert cli_main(["scene", "make", "kitchen7", "--out", str(tmp_path)]) == 2
     assert "kitchen7" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv", [["--debug", "scene", "make", "kitchen7"], ["scene", "make", "kitchen7", "--debug"]])
+def test_debug_before_or_after_the_subcommand_shows_the_traceback(tmp_path, argv):
+    from flightrecon.errors import FlightReconError
+
+    with pytest.raises(FlightReconError, match="kitchen7"):
+        cli_main(argv + ["--out", str(tmp_path)])

@@ -29,6 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rerun", action="store_true",
                    help="stream the flight live to a rerun viewer (web viewer address printed when headless)")
     p.add_argument("--no-record", action="store_true", help="write no recording.rrd (output.record=false)")
+    p.add_argument("--export-3dgs", action="store_true",
+                   help="also write map_3dgs.ply with scale_2 for 3DGS viewers (as `map --export-3dgs`)")
     p.set_defaults(func=run)
 
 
@@ -55,6 +57,10 @@ def _run_active(cfg: ScenarioConfig | None, out: Path, progress: bool, args: arg
     mission = Mission.resume(out, progress=progress) if cfg is None else Mission(cfg, out, progress=progress)
     mission.live_viewer = args.rerun
     m = mission.run()
+    if args.export_3dgs:
+        from flightrecon.mapping.ply import save_map
+
+        save_map(mission.mapper.map, out / "map_3dgs.ply", for_3dgs=True)
     e = m["eval"]
     print(f"{m['frames']} frames, {m['splats']} splats ({m['map_mb']:.1f} MB); evaluation views: PSNR "
           f"{e['psnr']:.2f} dB, SSIM {e['ssim']:.3f}, depth L1 {e['depth_l1_cm']:.2f} cm; flew "
