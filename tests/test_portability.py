@@ -34,12 +34,15 @@ def test_cache_key_names_the_cpu_and_the_flags(monkeypatch):
 
 def _fly_demo(out: Path, env: dict, frames: int = 6) -> None:
     """The README demo's settings for `frames` frames through the CLI: it must finish, with every
-    map column finite (load_map rejects NaN) and a planned move after the initial turns."""
-    p = subprocess.run([sys.executable, "-m", "flightrecon.cli", "fly", "demo", "--quiet", "--no-record",
+    map column finite (load_map rejects NaN) and a planned move after the initial turns; the
+    3DGS-viewer copy of the map carries scale_2."""
+    p = subprocess.run([sys.executable, "-m", "flightrecon.cli", "fly", "demo", "--quiet", "--no-record", "--export-3dgs",
                         "--set", f"budget.frames={frames}", "--out", str(out)],
                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert p.returncode == 0, p.stdout + p.stderr
     load_map(out / "map.ply")
+    header = (out / "map_3dgs.ply").read_bytes()[:4096].split(b"end_header")[0]
+    assert b"property float scale_2" in header
     with open(out / "frames.csv") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == frames
