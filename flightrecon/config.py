@@ -178,10 +178,12 @@ class BudgetConfig:
 
 @dataclass(frozen=True)
 class EvaluationConfig:
-    views: int = _f(8, 1, 1000, doc="fixed evaluation viewpoints per scene, shared by every method and seed")
+    views: int = _f(64, 1, 1000, doc="fixed evaluation viewpoints per scene, shared by every method and seed, "
+                     "stratified over the floor plan, headings and pitch (flightrecon/evaluation/views.py)")
     seed: int = _f(0, 0, None, doc="seed of the evaluation viewpoints (independent of the run's seed)")
     every: int = _f(10, 0, 100000, doc="evaluate the map every this many frames during a flight; 0: at the end only")
-    height_band: float = _f(0.4, 0.0, 3.0, doc="viewpoint heights are take-off height +- this (m)")
+    height_margin: float = _f(0.15, 0.0, 3.0, doc="viewpoint heights span the flight workspace's and this "
+                              "beyond it (m)")
     snapshots: bool = _f(False, doc="save the map at each in-flight evaluation (snapshots/ in the run folder) so "
                          "`eval` adds mesh metrics over collected frames; `sweep` turns it on")
 
@@ -192,8 +194,6 @@ class MetricsConfig:
     tsdf_truncation: float = _f(0.06, 0.004, 5.0, doc="TSDF truncation distance (m)")
     sample_points: int = _f(200000, 100, 100000000, doc="points sampled on each mesh for Acc/Comp/CD/F-score")
     fscore_threshold: float = _f(0.05, 1e-4, 1.0, doc="distance threshold of the F-score (m)")
-    visibility_tolerance: float = _f(0.05, 0.0, 1.0, doc="a point counts as seen by an evaluation view when "
-                                     "at most this far behind its ground-truth depth (m)")
     lpips_weights: str = _f("", doc="local LPIPS weights (a torch file of the `lpips` package's net); "
                             "empty: LPIPS is reported as n/a, nothing is downloaded")
 

@@ -106,7 +106,7 @@ class Mission:
         self.planner = Planner(cfg, self.workspace, self.scene.trimesh, self.start)
         self.mapper = OnlineMapper(cfg.mapper, near=c.near, far=c.far, seed=cfg.seed)
         self.selector = make_selector(cfg)
-        self.evaluation = EvaluationSet.for_mission(self.camera, self.truth, self.workspace, float(self.start[2]), cfg)
+        self.evaluation = EvaluationSet.for_mission(self.camera, self.start, self.truth, self.workspace, cfg)
         self.state = MissionState()
         self.live_viewer = False  # `fly --rerun`: stream the recording to a viewer as well
         self.recorder = NullRecorder()

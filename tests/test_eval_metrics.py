@@ -8,7 +8,7 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from flightrecon.errors import DataError
 from flightrecon.evaluation.lpips_metric import LpipsMetric
-from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface, visible_mask
+from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface
 from flightrecon.evaluation.tsdf import fuse_depth_maps
 from flightrecon.evaluation.view_store import load_views, save_views
 from flightrecon.geometry import camera_pose, intrinsics
@@ -114,15 +114,6 @@ def test_tsdf_of_rendered_depth_recovers_a_box_within_a_voxel():
     side = sample_surface(np.asarray(box.vertices), np.asarray(box.faces), 4000, seed=0)
     side = side[np.abs(side[:, 2]) < half[2] - trunc]
     assert point_metrics(sample_surface(v, mesh.faces, 20000), side, voxel)["recall"] > 0.99
-
-
-def test_visible_mask_keeps_points_in_view_and_drops_hidden_ones():
-    W, H = 40, 30
-    K = intrinsics(W, H, 90.0)
-    T = camera_pose(np.array([0.0, 0.0, 1.0]), 0.0)  # looks along +x
-    depth = np.full((H, W), 2.0)  # a wall at x = 2
-    pts = np.array([[2.0, 0.0, 1.0], [1.0, 0.1, 1.0], [3.0, 0.0, 1.0], [-1.0, 0.0, 1.0]])
-    np.testing.assert_array_equal(visible_mask(pts, T[None], [depth], K, 0.05), [True, True, False, False])
 
 
 def test_view_store_round_trip_and_bad_file(tmp_path):

@@ -15,7 +15,7 @@ TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "sel
         "evaluation.views=2", "evaluation.every=1", "metrics.tsdf_voxel=0.05", "metrics.tsdf_truncation=0.15",
         "metrics.sample_points=5000"]
 
-TABLES = [f"{t}.{ext}" for t in ("overall", "per_scene", "efficiency") for ext in ("md", "csv", "tex")]
+TABLES = [f"{t}.{ext}" for t in ("overall", "paired", "per_scene", "efficiency") for ext in ("md", "csv", "tex")]
 FIGURES = ["quality_over_frames.png", "candidate_time_over_frames.png", "quality_vs_time.png", "novel_views.png"]
 
 
@@ -58,6 +58,9 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
         assert (report / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     overall = (report / "overall.md").read_text()
     assert "| gaussmi2d |" in overall and "| random |" in overall
+    paired = (report / "paired.md").read_text()  # one seed: a difference without an interval
+    diff = recs[1]["psnr"] - recs[0]["psnr"] if recs[1]["method"] == "random" else recs[0]["psnr"] - recs[1]["psnr"]
+    assert f"| random | all | {diff:.2f} |" in paired and "| random | room0 |" in paired
     assert all(status(s) == "done" for s in specs)
     again = execute(specs, log=lambda s: None)
     assert [what for _, what in again] == ["skipped (finished)"] * 2

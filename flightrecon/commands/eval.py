@@ -24,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenes", nargs="+", default=None, help="with --views: these scenes (default: the scenario's)")
     p.add_argument("--out", default=None, help="with --views: output folder (default scenarios/eval_views)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="with --views: override a config value (repeatable)")
+                   help="override a config value of the evaluation (e.g. evaluation.views=64) or, with --views, "
+                        "of the scenario (repeatable)")
     p.set_defaults(func=run)
 
 
@@ -36,20 +37,20 @@ def run(args: argparse.Namespace) -> int:
     from flightrecon.evaluation.run_eval import evaluate_run
 
     for d in args.run_dirs:
-        m = evaluate_run(d, args.lpips_weights)
+        m = evaluate_run(d, args.lpips_weights, args.overrides)
         print(f"{d}: {json.dumps(m)}")
     return 0
 
 
 def _write_views(args: argparse.Namespace) -> int:
     from flightrecon.config import load_config
-    from flightrecon.evaluation.run_eval import evaluation_set_for
+    from flightrecon.evaluation.run_eval import evaluation_views_for
     from flightrecon.evaluation.view_store import VIEWS_DIR, save_views, views_path
 
     base = load_config(args.views, args.overrides)
     for scene in args.scenes or [base.scene.name]:
         cfg = load_config(args.views, args.overrides + [f"scene.name={scene}"])
-        ev, _ = evaluation_set_for(cfg)
+        ev = evaluation_views_for(cfg)
         path = save_views(views_path(scene, args.out or VIEWS_DIR), scene, ev.poses, ev.K, ev.width, ev.height,
                           cfg.evaluation.seed)
         print(f"{path}: {len(ev.poses)} views")

@@ -8,12 +8,8 @@ with scipy KD-trees:
   F-score@t  = 2 P R / (P + R), P = share of reconstructed points within t of the ground truth,
                R = share of ground-truth points within t of the reconstruction (t = 5 cm).
 
-Restriction to what the evaluation views see (`visible_mask`): a point is kept when it projects
-into at least one evaluation view with camera depth at most that view's ground-truth depth there
-plus a tolerance (it is not hidden behind the surface that view sees). It is applied to the
-ground-truth points, so unseen rooms or hidden furniture backs are not counted as missing, and to
-the reconstructed points, so splats hidden from every evaluation view are not counted either;
-floating points in front of the true surface are kept and count as errors.
+The ground-truth points are the visible part of the surface (flightrecon.evaluation.visible_surface);
+every point of the reconstruction counts, so floating surface in front of the truth is an error.
 """
 
 from __future__ import annotations
@@ -22,7 +18,6 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from flightrecon.geometry import project_points
 
 
 def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
@@ -32,22 +27,6 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int, seed: in
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
     pts, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
     return np.asarray(pts, float)
-
-
-def visible_mask(points: np.ndarray, poses: np.ndarray, depths: list[np.ndarray], K: np.ndarray,
-                 tolerance: float) -> np.ndarray:
-    """(N,) True where a point is seen by at least one view (in its image, not behind its depth)."""
-    seen = np.zeros(len(points), bool)
-    for T, depth in zip(poses, depths):
-        H, W = depth.shape
-        uv, z = project_points(points, K, T)
-        with np.errstate(invalid="ignore"):
-            u, v = np.floor(uv[:, 0]), np.floor(uv[:, 1])
-            inside = (z > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-        d = np.zeros(len(points))
-        d[inside] = depth[v[inside].astype(int), u[inside].astype(int)]
-        seen |= inside & (d > 0) & (z <= d + tolerance)
-    return seen
 
 
 def point_metrics(recon: np.ndarray, truth: np.ndarray, threshold: float = 0.05) -> dict:

@@ -1,8 +1,11 @@
 """The paper's tables and figures from a sweep's run folders.
 
-Tables (each as .md, .csv and .tex): `overall` (per method, mean over scenes and seeds, as the
-paper's Table "Overall Evaluation Results"), `per_scene` (PSNR, D-L1, F-score per method and
-scene), `efficiency` (per-candidate evaluation time, selector update time, model size).
+Tables (each as .md, .csv and .tex): `overall` (per method, mean over scenes and seeds with its
+95% t-interval, as the paper's Table "Overall Evaluation Results", image metrics on all pixels and
+on covered ones), `paired` (every method's paired difference to ours, over all runs and per scene,
+with its 95% interval: the same scenes and seeds are paired; * where it excludes zero),
+`per_scene` (PSNR, D-L1, F-score per method and scene, mean and interval over seeds),
+`efficiency` (per-candidate evaluation time, selector update time, model size).
 Per-candidate time = total scoring time / total feasible candidates scored, from frames.csv
 (t_score, n_feasible) over the steps that scored more than one candidate.
 
@@ -25,14 +28,18 @@ from pathlib import Path
 
 import numpy as np
 
+from flightrecon.evaluation.intervals import mean_interval, paired_difference
 from flightrecon.evaluation.run_eval import OVER_FRAMES
 from flightrecon.fileio import atomic_path, write_text
 
-OVERALL = [("psnr", "PSNR", "up", 2), ("ssim", "SSIM", "up", 3), ("lpips", "LPIPS", "down", 3),
-           ("depth_l1_cm", "D-L1 [cm]", "down", 2), ("accuracy_cm", "Acc [cm]", "down", 2),
-           ("completion_cm", "Comp [cm]", "down", 2), ("chamfer_cm", "CD [cm]", "down", 2),
-           ("fscore", "F-score", "up", 3)]
+OVERALL = [("psnr", "PSNR", "up", 2), ("psnr_covered", "PSNR cov.", "up", 2), ("covered_share", "Covered", "up", 3),
+           ("ssim", "SSIM", "up", 3), ("ssim_covered", "SSIM cov.", "up", 3), ("lpips", "LPIPS", "down", 3),
+           ("depth_l1_cm", "D-L1 [cm]", "down", 2), ("depth_l1_cm_covered", "D-L1 cov. [cm]", "down", 2),
+           ("accuracy_cm", "Acc [cm]", "down", 2), ("completion_cm", "Comp [cm]", "down", 2),
+           ("chamfer_cm", "CD [cm]", "down", 2), ("fscore", "F-score", "up", 3)]
 PER_SCENE = [("psnr", "PSNR"), ("depth_l1_cm", "D-L1"), ("fscore", "F-score")]
+PAIRED = [("psnr", "PSNR", 2), ("psnr_covered", "PSNR cov.", 2), ("depth_l1_cm", "D-L1 [cm]", 2),
+          ("completion_cm", "Comp [cm]", 2), ("fscore", "F-score", 3)]
 
 
 def _read_frames(path: Path) -> list[dict]:
@@ -117,25 +124,45 @@ def _write_table(out: Path, name: str, header: list[str], rows: list[list[str]],
     return paths
 
 
+def _by_run(recs: list[dict], method: str, key: str, scene: str | None = None) -> dict:
+    """{(scene, seed): value} of one method's runs (one scene's, if given)."""
+    return {(r["scene"], r["seed"]): _num(r.get(key)) for r in recs
+            if r["method"] == method and (scene is None or r["scene"] == scene)}
+
+
+def _paired_cell(recs: list[dict], method: str, ours: str, key: str, digits: int, scene: str | None = None) -> str:
+    iv = paired_difference(_by_run(recs, method, key, scene), _by_run(recs, ours, key, scene))
+    return iv.format(digits) + ("*" if iv.excludes_zero() else "")
+
+
 def write_tables(recs: list[dict], out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     methods = _methods(recs)
+    ours = methods[0]
     scenes = sorted({r["scene"] for r in recs})
     seeds = sorted({r["seed"] for r in recs})
     note = f"{len(scenes)} scene(s), {len(seeds)} seed(s)"
     rows = []
     for m in methods:
         mine = [r for r in recs if r["method"] == m]
-        rows.append([m] + [_fmt(_mean(r[k] for r in mine), dg) for k, _, _, dg in OVERALL])
+        rows.append([m] + [mean_interval(_num(r.get(k)) for r in mine).format(dg) for k, _, _, dg in OVERALL])
     paths = _write_table(out, "overall", ["Method"] + [h for _, h, _, _ in OVERALL], rows,
-                         f"Overall evaluation results (mean over {note})")
+                         f"Overall evaluation results (mean ± 95% interval over {note}; 'cov.': on pixels "
+                         "the map covers, alpha >= 0.5)")
+    rows = []
+    for m in methods[1:]:
+        for scene in [None] + scenes:
+            rows.append([m, scene or "all"] + [_paired_cell(recs, m, ours, k, dg, scene) for k, _, dg in PAIRED])
+    paths += _write_table(out, "paired", ["Method", "Scene"] + [h for _, h, _ in PAIRED], rows,
+                          f"Paired difference to {ours} (method - {ours}, mean ± 95% interval over the same "
+                          f"scenes and seeds; * excludes zero; {note})")
     rows = []
     for m in methods:
         for k, h in PER_SCENE:
-            rows.append([m, h] + [_fmt(_mean(r[k] for r in recs if r["method"] == m and r["scene"] == s),
-                                       3 if k == "fscore" else 2) for s in scenes])
+            rows.append([m, h] + [mean_interval(_by_run(recs, m, k, s).values()).format(3 if k == "fscore" else 2)
+                                  for s in scenes])
     paths += _write_table(out, "per_scene", ["Method", "Metric"] + scenes, rows,
-                          f"Per-scene evaluation results (mean over {len(seeds)} seed(s))")
+                          f"Per-scene evaluation results (mean ± 95% interval over {len(seeds)} seed(s))")
     rows = []
     for m in methods:
         mine = [r for r in recs if r["method"] == m]

@@ -7,9 +7,12 @@ view's ground truth and renders, for the sweep's figures) into the run folder, a
 `eval_over_frames.csv`: the same metrics for the map snapshots the flight saved at each in-flight
 evaluation (`evaluation.every`), so mesh accuracy can be plotted over collected frames.
 
-The mesh is fused from the map's rendered depth at the evaluation views (expected depth where the
-rendered opacity exceeds 0.5), the same views that define the visible part of the ground truth
-(flightrecon.evaluation.mesh_metrics), so mesh metrics and rendering metrics judge the same region.
+The mesh is fused (flightrecon.evaluation.tsdf) from the map's rendered depth (expected depth where
+the rendered opacity exceeds 0.5) at a fixed dense set of views, the same for every method: six
+90-degree cube faces at each of the first evaluation positions (one per floor-plan cell), so every
+direction of the room is fused. It is compared with the part of the ground-truth surface visible
+from the room's free space (flightrecon.evaluation.visible_surface), so completion measures the
+whole room; every point of the fused mesh counts for accuracy.
 """
 
 from __future__ import annotations
@@ -24,12 +27,12 @@ import trimesh
 from flightrecon.config import ScenarioConfig, load_config
 from flightrecon.errors import FlightReconError
 from flightrecon.evaluation.lpips_metric import LpipsMetric
-from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface, visible_mask
+from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface
 from flightrecon.evaluation.tsdf import fuse_depth_maps
-from flightrecon.evaluation.views import EvaluationSet
+from flightrecon.evaluation.views import EvaluationSet, grid_size, mean_metrics, view_metrics
+from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
 from flightrecon.fileio import atomic_path, write_json, write_text
-from flightrecon.geometry import pixel_rays
-from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim
+from flightrecon.geometry import camera_pose, intrinsics, pixel_rays
 from flightrecon.mapping.losses import normals_from_depth
 from flightrecon.mapping.ply import load_map
 from flightrecon.mapping.store import GaussianMap
@@ -62,8 +65,29 @@ class MapRenderer:
                       far=self.far, outputs=outputs, backend=self.backend)
 
 
-def evaluation_set_for(cfg: ScenarioConfig) -> tuple[EvaluationSet, trimesh.Trimesh]:
-    """The scene's evaluation views with ground truth (as the loop builds them) and the true mesh."""
+@dataclass
+class EvaluationTruth:
+    """What a run is scored against: the evaluation views with their ground truth, the views the
+    mesh is fused from, and the visible ground-truth surface."""
+
+    views: EvaluationSet
+    fusion_poses: np.ndarray  # [F,4,4]
+    fusion_K: np.ndarray
+    fusion_size: int  # square fusion images, fusion_size pixels a side
+    surface_points: np.ndarray  # (M,3) samples of the ground-truth surface visible from the free space
+    visible_area_m2: float
+    total_area_m2: float
+
+
+def fusion_poses(views: np.ndarray, positions: int) -> np.ndarray:
+    """Six 90-degree cube faces (four headings, straight down, straight up) at each of the first
+    `positions` evaluation view positions: the dense view set the TSDF mesh is fused from."""
+    faces = [(yaw, 0.0) for yaw in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi)] + [(0.0, 90.0), (0.0, -90.0)]
+    return np.stack([camera_pose(T[:3, 3], yaw, pitch) for T in views[:positions] for yaw, pitch in faces])
+
+
+def _scene_setup(cfg: ScenarioConfig):
+    """(scene, camera, workspace, take-off point, ground-truth distance field) as the loop builds them."""
     from flightrecon.mission import flight_region
     from flightrecon.planning.distance_field import DistanceField
     from flightrecon.scene.source import scene_from_config
@@ -72,13 +96,29 @@ def evaluation_set_for(cfg: ScenarioConfig) -> tuple[EvaluationSet, trimesh.Trim
 
     c = cfg.camera
     scene = scene_from_config(cfg.scene)
-    world = build_world(scene, cfg)
-    camera = RGBDCamera(world, c.width, c.height, c.hfov_deg, c.near, c.far)
+    camera = RGBDCamera(build_world(scene, cfg), c.width, c.height, c.hfov_deg, c.near, c.far)
     workspace, start = flight_region(scene, cfg)
     pad = cfg.drone.body_radius + cfg.planner.safety_margin + 0.2
     truth = DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size,
                                     workspace + np.array([[-pad], [pad]]), signed=False)
-    return EvaluationSet.for_mission(camera, truth, workspace, float(start[2]), cfg), scene.trimesh
+    return scene, camera, workspace, start, truth
+
+
+def evaluation_views_for(cfg: ScenarioConfig) -> EvaluationSet:
+    """The scene's evaluation views with their ground truth, as the loop builds them."""
+    _, camera, workspace, start, truth = _scene_setup(cfg)
+    return EvaluationSet.for_mission(camera, start, truth, workspace, cfg)
+
+
+def evaluation_truth_for(cfg: ScenarioConfig) -> EvaluationTruth:
+    """The evaluation views with ground truth, the fusion views and the visible ground-truth surface."""
+    scene, camera, workspace, start, truth = _scene_setup(cfg)
+    views = EvaluationSet.for_mission(camera, start, truth, workspace, cfg)
+    visible = visible_surface(scene, room_free_space(scene, start), cfg.metrics.sample_points)
+    size = cfg.camera.height
+    return EvaluationTruth(views, fusion_poses(views.poses, grid_size(len(views.poses)) ** 2),
+                           intrinsics(size, size, 90.0), size, visible.points,
+                           visible.visible_area_m2, visible.total_area_m2)
 
 
 def normal_angle_error_deg(normal: torch.Tensor, depth_gt: torch.Tensor, K: np.ndarray) -> float:
@@ -100,76 +140,76 @@ def _nanmean(values: list[float]) -> float:
     return float(np.mean(v)) if v else float("nan")
 
 
-def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, ev: EvaluationSet, gt_mesh: trimesh.Trimesh,
+def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, truth: EvaluationTruth,
                  lpips: LpipsMetric) -> tuple[dict, dict, trimesh.Trimesh]:
-    """(metrics, first-view renders, TSDF mesh) of a map on the evaluation views."""
+    """(metrics, first-view renders, TSDF mesh) of a map: image metrics on the evaluation views,
+    mesh metrics of its fusion at the fusion views against the visible ground truth."""
     r = MapRenderer(gmap, cfg.camera.near, cfg.camera.far, cfg.mapper.backend)
-    ps, ss, dl, na, lp, depths = [], [], [], [], [], []
+    ev = truth.views
+    per_view, na, lp = [], [], []
     first: dict = {}
     for i, T in enumerate(ev.poses):
         out = r.render_view(T, ev.K, ev.width, ev.height, outputs=("features", "alpha", "depth", "normal"))
         color = out.features[0].clamp(0, 1)
-        ps.append(float(psnr(color, ev.rgb[i])))
-        ss.append(float(ssim(color, ev.rgb[i])))
-        dl.append(100.0 * float(depth_l1(out.depth[0], ev.depth[i])))
+        per_view.append(view_metrics(color, out.depth[0], out.alpha[0], ev.rgb[i], ev.depth[i]))
         na.append(normal_angle_error_deg(out.normal[0], ev.depth[i], ev.K))
         if lpips.available:
             lp.append(lpips(color, ev.rgb[i]))
-        d = torch.where(out.alpha[0] > SURFACE_ALPHA, out.depth[0], torch.zeros_like(out.depth[0]))
-        depths.append(d[..., 0].numpy().astype(np.float64))
         if i == 0:
             first = {"gt_rgb": ev.rgb[0].numpy(), "gt_depth": ev.depth[0, ..., 0].numpy(),
                      "rgb": color.numpy(), "depth": out.depth[0, ..., 0].numpy(),
-                     "normal": out.normal[0].numpy(), "psnr": ps[0], "depth_l1_cm": dl[0],
-                     "normal_err_deg": na[0]}
+                     "normal": out.normal[0].numpy(), "psnr": per_view[0]["psnr"],
+                     "depth_l1_cm": per_view[0]["depth_l1_cm"], "normal_err_deg": na[0]}
+    depths = []
+    for T in truth.fusion_poses:
+        out = r.render_view(T, truth.fusion_K, truth.fusion_size, truth.fusion_size, outputs=("alpha", "depth"))
+        d = torch.where(out.alpha[0] > SURFACE_ALPHA, out.depth[0], torch.zeros_like(out.depth[0]))
+        depths.append(d[..., 0].numpy().astype(np.float64))
     m = cfg.metrics
-    mesh = fuse_depth_maps(depths, ev.poses, ev.K, voxel=m.tsdf_voxel, truncation=m.tsdf_truncation,
-                           max_depth=cfg.camera.far)
-    gt_depths = [ev.depth[i, ..., 0].numpy().astype(np.float64) for i in range(len(ev.poses))]
-    gt_pts = sample_surface(np.asarray(gt_mesh.vertices), np.asarray(gt_mesh.faces), m.sample_points, seed=0)
-    gt_pts = gt_pts[visible_mask(gt_pts, ev.poses, gt_depths, ev.K, m.visibility_tolerance)]
+    mesh = fuse_depth_maps(depths, truth.fusion_poses, truth.fusion_K, voxel=m.tsdf_voxel,
+                           truncation=m.tsdf_truncation, max_depth=cfg.camera.far)
     rec_pts = sample_surface(mesh.vertices, mesh.faces, m.sample_points, seed=0)
-    rec_pts = rec_pts[visible_mask(rec_pts, ev.poses, gt_depths, ev.K, m.visibility_tolerance)]
-    geo = point_metrics(rec_pts, gt_pts, m.fscore_threshold)
+    geo = point_metrics(rec_pts, truth.surface_points, m.fscore_threshold)
     metrics = {
-        "psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)),
+        **mean_metrics(per_view),
         "lpips": float(np.mean(lp)) if lp else "n/a", "lpips_note": lpips.reason,
-        "depth_l1_cm": float(np.mean(dl)), "normal_err_deg": _nanmean(na),
+        "normal_err_deg": _nanmean(na),
         "accuracy_cm": 100 * geo["accuracy"], "completion_cm": 100 * geo["completion"],
         "chamfer_cm": 100 * geo["chamfer"], "precision": geo["precision"], "recall": geo["recall"],
         "fscore": geo["fscore"], "fscore_threshold_cm": 100 * m.fscore_threshold,
-        "mesh_vertices": int(len(mesh.vertices)), "gt_points_visible": int(len(gt_pts)),
-        "views": int(len(ev.poses)),
+        "mesh_vertices": int(len(mesh.vertices)), "gt_points_visible": int(len(truth.surface_points)),
+        "gt_visible_area_m2": truth.visible_area_m2, "gt_total_area_m2": truth.total_area_m2,
+        "views": int(len(ev.poses)), "fusion_views": int(len(truth.fusion_poses)),
     }
     return metrics, first, trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
 
 
-def evaluate_run(run_dir: str | Path, lpips_weights: str | None = None) -> dict:
-    """Evaluate `run_dir` (a finished flight), write eval.json, mesh.ply, novel_view.npz; return metrics."""
+def evaluate_run(run_dir: str | Path, lpips_weights: str | None = None, overrides: list[str] | tuple = ()) -> dict:
+    """Evaluate `run_dir` (a finished flight), write eval.json, mesh.ply, novel_view.npz; return
+    metrics. `overrides` (e.g. `evaluation.views=64`) change how it is scored, not the run."""
     run_dir = Path(run_dir)
     if not (run_dir / "map.ply").is_file():
         raise FlightReconError(f"{run_dir} has no map.ply: is the run finished?")
-    cfg = load_config(run_dir / "config.toml")
-    ev, gt_mesh = evaluation_set_for(cfg)
+    cfg = load_config(run_dir / "config.toml", overrides)
+    truth = evaluation_truth_for(cfg)
     lpips = LpipsMetric(lpips_weights if lpips_weights is not None else cfg.metrics.lpips_weights)
-    metrics, first, mesh = evaluate_map(load_map(run_dir / "map.ply"), cfg, ev, gt_mesh, lpips)
+    metrics, first, mesh = evaluate_map(load_map(run_dir / "map.ply"), cfg, truth, lpips)
     metrics["model_mb"] = (run_dir / "map.ply").stat().st_size / 1e6
     with atomic_path(run_dir / "mesh.ply") as tmp:
         mesh.export(str(tmp), file_type="ply")
     with atomic_path(run_dir / "novel_view.npz") as tmp:
         with open(tmp, "wb") as f:
             np.savez_compressed(f, **first)
-    _write_over_frames(run_dir, cfg, ev, gt_mesh, lpips)
+    _write_over_frames(run_dir, cfg, truth, lpips)
     write_json(run_dir / "eval.json", metrics)
     return metrics
 
 
-def _write_over_frames(run_dir: Path, cfg: ScenarioConfig, ev: EvaluationSet, gt_mesh: trimesh.Trimesh,
-                       lpips: LpipsMetric) -> None:
+def _write_over_frames(run_dir: Path, cfg: ScenarioConfig, truth: EvaluationTruth, lpips: LpipsMetric) -> None:
     """Full metrics of the flight's map snapshots (mesh accuracy over collected frames for the report)."""
     snaps = sorted((run_dir / SNAPSHOTS).glob("map_*.ply"))
     rows = [",".join(("frame",) + OVER_FRAMES_KEYS)]
     for snap in snaps:
-        m, _, _ = evaluate_map(load_map(snap), cfg, ev, gt_mesh, lpips)
+        m, _, _ = evaluate_map(load_map(snap), cfg, truth, lpips)
         rows.append(",".join([snap.stem.split("_")[1]] + [f"{m[k]:.6g}" for k in OVER_FRAMES_KEYS]))
     write_text(run_dir / OVER_FRAMES, "\n".join(rows) + "\n")

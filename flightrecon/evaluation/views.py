@@ -1,10 +1,19 @@
 """Fixed evaluation viewpoints and the rendering metrics of a map on them.
 
 The viewpoints are a seeded set per scene (seeded by the scene name and `evaluation.seed`, not by
-the run's seed), so every method and every seed is scored on the same views: free-space poses at
-flight height (take-off height +- `evaluation.height_band`) with uniformly random heading, kept
-only where the ground-truth distance field leaves the drone's body radius + safety margin. Their
-ground truth is rendered by the simulator's camera.
+the run's seed), so every method and every seed is scored on the same views. They are stratified
+over the free space so that their mean measures the whole room: the floor plan of the flight
+workspace is cut into a grid of cells that share the views evenly, headings into eight sectors
+that do too, and a quarter of the views look 25 deg down and a quarter 25 deg up. Heights span the
+flight workspace and `evaluation.height_margin` beyond it. A view is kept where the camera has
+the drone's body radius of clearance on the ground-truth distance field and lies in the room's
+free space (connected to the take-off point, not inside closed furniture); a cell without such a
+point gives its views to the whole workspace. Their ground truth is rendered by the simulator's
+camera.
+
+Every image metric is reported on all pixels and on covered pixels (rendered opacity >= 0.5), with
+the covered share: never-covered pixels count in full in the first (fair: the map is missing
+there) and not at all in the second (what the map that exists is worth).
 """
 
 from __future__ import annotations
@@ -17,32 +26,96 @@ import numpy as np
 import torch
 
 from flightrecon.config import ScenarioConfig
+from flightrecon.evaluation.visible_surface import room_free_space
 from flightrecon.geometry import camera_pose
-from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim
+from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim, ssim_map
 
 _MAX_TRIES = 200
+HEADING_SECTORS = 8
+PITCHES_DEG = (0.0, 25.0, 0.0, -25.0)  # positive looks down
+COVERED_ALPHA = 0.5
+SSIM_RADIUS = 5  # the SSIM window's half width: ssim_map covers the image less this border
 
 
-def evaluation_poses(scene_name: str, truth_field, workspace: np.ndarray, flight_z: float,
+def stratum(k: int, cells: int) -> tuple[int, int, float]:
+    """(floor-plan cell, heading sector, pitch in deg) of view k: cells take views in turn, and the
+    sector and pitch advance with each round so every cell sees several headings and pitches."""
+    rnd = k // cells
+    return k % cells, (k + rnd) % HEADING_SECTORS, PITCHES_DEG[rnd % len(PITCHES_DEG)]
+
+
+def grid_size(views: int) -> int:
+    """Cells per side of the floor-plan grid: about four views per cell."""
+    return max(1, math.ceil(math.sqrt(views / 4)))
+
+
+def evaluation_poses(scene, start: np.ndarray, truth_field, workspace: np.ndarray,
                      cfg: ScenarioConfig) -> np.ndarray:
-    """T_wc [V,4,4] of the scene's evaluation views (deterministic for scene name + evaluation.seed);
-    heights are `flight_z` (the take-off height) +- evaluation.height_band, inside the workspace."""
+    """T_wc [V,4,4] of the scene's evaluation views (deterministic for scene name + evaluation.seed)."""
     e = cfg.evaluation
-    rng = np.random.default_rng([zlib.crc32(scene_name.encode()), e.seed])
+    rng = np.random.default_rng([zlib.crc32(scene.name.encode()), e.seed])
     lo, hi = np.asarray(workspace, float)
-    need = cfg.drone.body_radius + cfg.planner.safety_margin
+    z_lo, z_hi = lo[2] - e.height_margin, hi[2] + e.height_margin
+    free = room_free_space(scene, start)
+
+    def usable(p: np.ndarray) -> bool:
+        return bool(free.contains(p)[0]) and truth_field.distance(p[None])[0] > cfg.drone.body_radius
+
+    g = grid_size(e.views)
+    edges_x, edges_y = np.linspace(lo[0], hi[0], g + 1), np.linspace(lo[1], hi[1], g + 1)
     poses = []
-    for _ in range(e.views * _MAX_TRIES):
-        p = np.array([rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1]),
-                      np.clip(flight_z + rng.uniform(-e.height_band, e.height_band), lo[2], hi[2])])
-        yaw = rng.uniform(-math.pi, math.pi)
-        if truth_field.distance(p[None])[0] > need:
-            poses.append(camera_pose(p, yaw, cfg.camera.pitch_deg))
-            if len(poses) == e.views:
-                break
-    if not poses:
-        raise ValueError(f"no free evaluation viewpoint found in the workspace of scene '{scene_name}'")
+    for k in range(e.views):
+        cell, sector, pitch_deg = stratum(k, g * g)
+        cx, cy = divmod(cell, g)
+        box = (np.array([edges_x[cx], edges_y[cy], z_lo]), np.array([edges_x[cx + 1], edges_y[cy + 1], z_hi]))
+        p = _draw(rng, box, usable)
+        if p is None:  # the cell holds no free space: its view goes anywhere in the workspace
+            p = _draw(rng, (np.array([lo[0], lo[1], z_lo]), np.array([hi[0], hi[1], z_hi])), usable)
+        if p is None:
+            raise ValueError(f"no free evaluation viewpoint found in the workspace of scene '{scene.name}'")
+        yaw = (sector + rng.random()) * 2 * math.pi / HEADING_SECTORS - math.pi
+        poses.append(camera_pose(p, yaw, pitch_deg))
     return np.stack(poses)
+
+
+def _draw(rng: np.random.Generator, box: tuple[np.ndarray, np.ndarray], usable) -> np.ndarray | None:
+    for _ in range(_MAX_TRIES):
+        p = rng.uniform(box[0], box[1])
+        if usable(p):
+            return p
+    return None
+
+
+def view_metrics(color: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor, gt_rgb: torch.Tensor,
+                 gt_depth: torch.Tensor) -> dict:
+    """PSNR, SSIM and depth L1 (cm) of one rendered view [H,W,k] on all pixels and on covered ones
+    (alpha >= 0.5; '_covered', NaN when none is), and the covered share of the pixels."""
+    covered = alpha >= COVERED_ALPHA
+    share = float(covered.float().mean())
+    out = {"psnr": float(psnr(color, gt_rgb)), "ssim": float(ssim(color, gt_rgb)),
+           "depth_l1_cm": 100.0 * float(depth_l1(depth, gt_depth)), "covered_share": share}
+    nan = math.nan
+    if share == 0.0:
+        return {**out, "psnr_covered": nan, "ssim_covered": nan, "depth_l1_cm_covered": nan}
+    mse = float(((color - gt_rgb).square() * covered).sum() / (covered.sum() * color.shape[-1]))
+    r = SSIM_RADIUS
+    inner = covered[r:-r, r:-r].expand(-1, -1, color.shape[-1])
+    smap = ssim_map(color, gt_rgb, radius=r)
+    valid = torch.isfinite(gt_depth) & (gt_depth > 0) & covered
+    dl = (depth - torch.nan_to_num(gt_depth)).abs()[valid]
+    return {**out, "psnr_covered": 10.0 * math.log10(1.0 / mse) if mse > 0 else math.inf,
+            "ssim_covered": float(smap[inner].mean()) if inner.any() else nan,
+            "depth_l1_cm_covered": 100.0 * float(dl.mean()) if len(dl) else nan}
+
+
+def mean_metrics(per_view: list[dict]) -> dict:
+    """Means over views (NaN entries, e.g. covered metrics of an uncovered view, left out)."""
+    keys = per_view[0].keys() if per_view else ()
+    out = {}
+    for k in keys:
+        vals = [v[k] for v in per_view if not (isinstance(v[k], float) and math.isnan(v[k]))]
+        out[k] = float(np.mean(vals)) if vals else math.nan
+    return out
 
 
 @dataclass
@@ -57,25 +130,23 @@ class EvaluationSet:
     height: int
 
     @classmethod
-    def for_mission(cls, camera, truth_field, workspace: np.ndarray, flight_z: float,
+    def for_mission(cls, camera, start: np.ndarray, truth_field, workspace: np.ndarray,
                     cfg: ScenarioConfig) -> "EvaluationSet":
-        poses = evaluation_poses(camera.world.scene.name, truth_field, workspace, flight_z, cfg)
+        poses = evaluation_poses(camera.world.scene, start, truth_field, workspace, cfg)
         frames = [camera.render(T) for T in poses]
         rgb = torch.from_numpy(np.stack([f[0] for f in frames]))
         depth = torch.from_numpy(np.stack([f[1] for f in frames]))[..., None]
         return cls(poses, rgb, depth, camera.K, camera.width, camera.height)
 
     def evaluate(self, mapper) -> dict:
-        """Mean PSNR (dB), SSIM and depth L1 (cm, on valid ground truth) over the views."""
-        ps, ss, dl = [], [], []
+        """Mean view metrics (`view_metrics`: PSNR dB, SSIM, depth L1 cm on valid ground truth, on all
+        and on covered pixels, covered share) over the views."""
+        per_view = []
         for i, T in enumerate(self.poses):
-            out = mapper.render_view(T, self.K, self.width, self.height, outputs=("features", "depth"))
-            color = out.features[0].clamp(0, 1).cpu()
-            ps.append(float(psnr(color, self.rgb[i])))
-            ss.append(float(ssim(color, self.rgb[i])))
-            dl.append(100.0 * float(depth_l1(out.depth[0].cpu(), self.depth[i])))
-        return {"psnr": float(np.mean(ps)), "ssim": float(np.mean(ss)), "depth_l1_cm": float(np.mean(dl)),
-                "views": len(self.poses)}
+            out = mapper.render_view(T, self.K, self.width, self.height, outputs=("features", "alpha", "depth"))
+            per_view.append(view_metrics(out.features[0].clamp(0, 1).cpu(), out.depth[0].cpu(), out.alpha[0].cpu(),
+                                         self.rgb[i], self.depth[i]))
+        return {**mean_metrics(per_view), "views": len(self.poses)}
 
     @staticmethod
     def frame_quality(mapper, obs) -> tuple[float, float]:
