@@ -155,3 +155,11 @@ def test_paired_interval_covers_a_known_difference():
     one = mean_interval([1.0])
     assert one.mean == 1.0 and math.isnan(one.half_width) and one.format(2) == "1.00"
     assert mean_interval([1.0, 2.0, float("nan")]).n == 2
+
+
+def test_the_stored_views_are_the_ones_the_loop_uses(room0):
+    from flightrecon.evaluation.view_store import load_views, views_path
+
+    stored = load_views(views_path("room0"))
+    assert stored["scene"] == "room0" and stored["evaluation_seed"] == 0
+    np.testing.assert_allclose(stored["poses"], _poses(room0), atol=1e-8)
