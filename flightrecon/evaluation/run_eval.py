@@ -113,8 +113,9 @@ def evaluation_views_for(cfg: ScenarioConfig) -> EvaluationSet:
 def evaluation_truth_for(cfg: ScenarioConfig) -> EvaluationTruth:
     """The evaluation views with ground truth, the fusion views and the visible ground-truth surface."""
     scene, camera, workspace, start, truth = _scene_setup(cfg)
-    views = EvaluationSet.for_mission(camera, start, truth, workspace, cfg)
-    visible = visible_surface(scene, room_free_space(scene, start), cfg.metrics.sample_points)
+    free = room_free_space(scene, start)
+    views = EvaluationSet.for_mission(camera, start, truth, workspace, cfg, free)
+    visible = visible_surface(scene, free, cfg.metrics.sample_points)
     size = cfg.camera.height
     return EvaluationTruth(views, fusion_poses(views.poses, grid_size(len(views.poses)) ** 2),
                            intrinsics(size, size, 90.0), size, visible.points,
@@ -141,7 +142,7 @@ def _nanmean(values: list[float]) -> float:
 
 
 def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, truth: EvaluationTruth,
-                 lpips: LpipsMetric) -> tuple[dict, dict, trimesh.Trimesh]:
+                 lpips: LpipsMetric | None) -> tuple[dict, dict, trimesh.Trimesh]:
     """(metrics, first-view renders, TSDF mesh) of a map: image metrics on the evaluation views,
     mesh metrics of its fusion at the fusion views against the visible ground truth."""
     r = MapRenderer(gmap, cfg.camera.near, cfg.camera.far, cfg.mapper.backend)
@@ -153,7 +154,7 @@ def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, truth: EvaluationTruth,
         color = out.features[0].clamp(0, 1)
         per_view.append(view_metrics(color, out.depth[0], out.alpha[0], ev.rgb[i], ev.depth[i]))
         na.append(normal_angle_error_deg(out.normal[0], ev.depth[i], ev.K))
-        if lpips.available:
+        if lpips is not None and lpips.available:
             lp.append(lpips(color, ev.rgb[i]))
         if i == 0:
             first = {"gt_rgb": ev.rgb[0].numpy(), "gt_depth": ev.depth[0, ..., 0].numpy(),
@@ -172,7 +173,8 @@ def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, truth: EvaluationTruth,
     geo = point_metrics(rec_pts, truth.surface_points, m.fscore_threshold)
     metrics = {
         **mean_metrics(per_view),
-        "lpips": float(np.mean(lp)) if lp else "n/a", "lpips_note": lpips.reason,
+        "lpips": float(np.mean(lp)) if lp else "n/a",
+        "lpips_note": lpips.reason if lpips is not None else "not computed",
         "normal_err_deg": _nanmean(na),
         "accuracy_cm": 100 * geo["accuracy"], "completion_cm": 100 * geo["completion"],
         "chamfer_cm": 100 * geo["chamfer"], "precision": geo["precision"], "recall": geo["recall"],
@@ -200,16 +202,16 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | None = None, override
     with atomic_path(run_dir / "novel_view.npz") as tmp:
         with open(tmp, "wb") as f:
             np.savez_compressed(f, **first)
-    _write_over_frames(run_dir, cfg, truth, lpips)
+    _write_over_frames(run_dir, cfg, truth)
     write_json(run_dir / "eval.json", metrics)
     return metrics
 
 
-def _write_over_frames(run_dir: Path, cfg: ScenarioConfig, truth: EvaluationTruth, lpips: LpipsMetric) -> None:
-    """Full metrics of the flight's map snapshots (mesh accuracy over collected frames for the report)."""
+def _write_over_frames(run_dir: Path, cfg: ScenarioConfig, truth: EvaluationTruth) -> None:
+    """The metrics of OVER_FRAMES_KEYS (LPIPS, the costliest, is not among them) of the flight's map snapshots (mesh accuracy over collected frames for the report)."""
     snaps = sorted((run_dir / SNAPSHOTS).glob("map_*.ply"))
     rows = [",".join(("frame",) + OVER_FRAMES_KEYS)]
     for snap in snaps:
-        m, _, _ = evaluate_map(load_map(snap), cfg, truth, lpips)
+        m, _, _ = evaluate_map(load_map(snap), cfg, truth, None)
         rows.append(",".join([snap.stem.split("_")[1]] + [f"{m[k]:.6g}" for k in OVER_FRAMES_KEYS]))
     write_text(run_dir / OVER_FRAMES, "\n".join(rows) + "\n")

@@ -26,9 +26,9 @@ import numpy as np
 import torch
 
 from flightrecon.config import ScenarioConfig
-from flightrecon.evaluation.visible_surface import room_free_space
+from flightrecon.evaluation.visible_surface import FreeSpace, room_free_space
 from flightrecon.geometry import camera_pose
-from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim, ssim_map
+from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim_map
 
 _MAX_TRIES = 200
 HEADING_SECTORS = 8
@@ -49,14 +49,15 @@ def grid_size(views: int) -> int:
     return max(1, math.ceil(math.sqrt(views / 4)))
 
 
-def evaluation_poses(scene, start: np.ndarray, truth_field, workspace: np.ndarray,
-                     cfg: ScenarioConfig) -> np.ndarray:
-    """T_wc [V,4,4] of the scene's evaluation views (deterministic for scene name + evaluation.seed)."""
+def evaluation_poses(scene, start: np.ndarray, truth_field, workspace: np.ndarray, cfg: ScenarioConfig,
+                     free: FreeSpace | None = None) -> np.ndarray:
+    """T_wc [V,4,4] of the scene's evaluation views (deterministic for scene name + evaluation.seed);
+    `free` is the room's free space if the caller has it already."""
     e = cfg.evaluation
     rng = np.random.default_rng([zlib.crc32(scene.name.encode()), e.seed])
     lo, hi = np.asarray(workspace, float)
     z_lo, z_hi = lo[2] - e.height_margin, hi[2] + e.height_margin
-    free = room_free_space(scene, start)
+    free = free or room_free_space(scene, start)
 
     def usable(p: np.ndarray) -> bool:
         return bool(free.contains(p)[0]) and truth_field.distance(p[None])[0] > cfg.drone.body_radius
@@ -92,15 +93,15 @@ def view_metrics(color: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor, 
     (alpha >= 0.5; '_covered', NaN when none is), and the covered share of the pixels."""
     covered = alpha >= COVERED_ALPHA
     share = float(covered.float().mean())
-    out = {"psnr": float(psnr(color, gt_rgb)), "ssim": float(ssim(color, gt_rgb)),
+    r = SSIM_RADIUS
+    smap = ssim_map(color, gt_rgb, radius=r)
+    out = {"psnr": float(psnr(color, gt_rgb)), "ssim": float(smap.mean()),
            "depth_l1_cm": 100.0 * float(depth_l1(depth, gt_depth)), "covered_share": share}
     nan = math.nan
     if share == 0.0:
         return {**out, "psnr_covered": nan, "ssim_covered": nan, "depth_l1_cm_covered": nan}
     mse = float(((color - gt_rgb).square() * covered).sum() / (covered.sum() * color.shape[-1]))
-    r = SSIM_RADIUS
     inner = covered[r:-r, r:-r].expand(-1, -1, color.shape[-1])
-    smap = ssim_map(color, gt_rgb, radius=r)
     valid = torch.isfinite(gt_depth) & (gt_depth > 0) & covered
     dl = (depth - torch.nan_to_num(gt_depth)).abs()[valid]
     return {**out, "psnr_covered": 10.0 * math.log10(1.0 / mse) if mse > 0 else math.inf,
@@ -131,8 +132,8 @@ class EvaluationSet:
 
     @classmethod
     def for_mission(cls, camera, start: np.ndarray, truth_field, workspace: np.ndarray,
-                    cfg: ScenarioConfig) -> "EvaluationSet":
-        poses = evaluation_poses(camera.world.scene, start, truth_field, workspace, cfg)
+                    cfg: ScenarioConfig, free: FreeSpace | None = None) -> "EvaluationSet":
+        poses = evaluation_poses(camera.world.scene, start, truth_field, workspace, cfg, free)
         frames = [camera.render(T) for T in poses]
         rgb = torch.from_numpy(np.stack([f[0] for f in frames]))
         depth = torch.from_numpy(np.stack([f[1] for f in frames]))[..., None]
