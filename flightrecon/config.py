@@ -36,11 +36,33 @@ class SceneConfig:
     path: str = _f("", doc="mesh file of a real scene (Replica mesh.ply, PLY, OBJ, GLB); empty: procedural")
     seed: int = _f(0, 0, None, doc="seed of the procedural generator")
     unit_scale: float = _f(1.0, 1e-6, 1e6, doc="multiplies the file's coordinates to get meters")
-    up_axis: str = _f("z", choices=("z", "y"), doc="up axis of the file; y-up files are rotated to z-up")
+    up_axis: str = _f("auto", choices=("z", "y", "auto"), doc="up axis of the file: z, y (rotated to z-up), or auto: "
+                      "estimated from the mesh's floor and walls (a tilted or upside-down scan is leveled; an "
+                      "uncertain estimate keeps the file's axes, with a warning; `flightrecon scene info` shows it)")
+    up_vector: list = _f([], doc="the file's up direction as 3 numbers (file coordinates), overriding up_axis; "
+                         "empty: unused")
+    rotation_deg: list = _f([0.0, 0.0, 0.0], doc="extra rotation about world x, then y, then z (degrees) after "
+                            "the up axis, e.g. [0, 0, 90] to turn the scene a quarter about the vertical")
     cache_dir: str = _f("", doc="where baked assets are cached; empty: ~/.cache/flightrecon")
     collision_voxel: float = _f(0.05, 0.005, 1.0, doc="voxel size of the scene's collision boxes (m)")
     ambient: float = _f(0.3, 0.0, 1.0, doc="share of the scene's color that comes from the headlight's "
                         "ambient instead of emission; rendered scene colors equal the mesh colors either way")
+
+    def __post_init__(self) -> None:
+        for key, allow_empty in (("up_vector", True), ("rotation_deg", False)):
+            value = getattr(self, key)
+            if not isinstance(value, list):
+                continue  # a wrong type is reported by _check_value when loading
+            if allow_empty and not value:
+                continue
+            if len(value) != 3 or not all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                          and math.isfinite(x) for x in value):
+                raise ConfigError(f"config key 'scene.{key}': expected 3 finite numbers [x, y, z]"
+                                  + (" or []" if allow_empty else "") + f", got {value!r}")
+            if key == "up_vector" and not any(value):
+                raise ConfigError(f"config key 'scene.up_vector': {value!r} is a zero-length vector; give the "
+                                  "file's up direction, e.g. [0, 1, 0], or [] to not use it")
+            object.__setattr__(self, key, [float(x) for x in value])
 
 
 @dataclass(frozen=True)

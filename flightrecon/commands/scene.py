@@ -45,7 +45,12 @@ def _scene_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("scene", help="a procedural scene name or a mesh file (PLY, OBJ, GLB) / Replica folder")
     p.add_argument("--seed", type=int, default=0, help="seed of a procedural scene")
     p.add_argument("--unit-scale", type=float, default=1.0, help="file units to meters")
-    p.add_argument("--up-axis", choices=("z", "y"), default="z", help="up axis of the file")
+    p.add_argument("--up-axis", choices=("z", "y", "auto"), default="auto",
+                   help="up axis of the file; auto: estimated from its floor and walls (default)")
+    p.add_argument("--up-vector", type=float, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="the file's up direction, overriding --up-axis (scene.up_vector)")
+    p.add_argument("--rotation-deg", type=float, nargs=3, default=None, metavar=("RX", "RY", "RZ"),
+                   help="extra rotation about world x, y, z after the up axis (scene.rotation_deg)")
     p.add_argument("--cache-dir", default="", help="cache folder (default ~/.cache/flightrecon)")
 
 
@@ -56,7 +61,8 @@ def _load(args):
 
     if args.scene in SCENE_NAMES and not Path(args.scene).exists():
         return procedural_scene(args.scene, args.seed, args.cache_dir)
-    return load_scene(args.scene, unit_scale=args.unit_scale, up_axis=args.up_axis)
+    return load_scene(args.scene, unit_scale=args.unit_scale, up_axis=args.up_axis, up_vector=args.up_vector,
+                      rotation_deg=args.rotation_deg)
 
 
 def _make(args) -> int:
@@ -90,7 +96,7 @@ def _info(args) -> int:
           + (f" ({s['quads']} quads)" if s["quads"] else ""))
     print(f"bounds (m)   min {s['bounds_min']}  max {s['bounds_max']}")
     print(f"size (m)     {s['size']}   surface {s['surface_area_m2']} m^2")
-    print(f"up axis      file {s['file_up_axis']} -> world z")
+    print(f"up axis      {_up_axis_line(s)}")
     print(f"appearance   {s['appearance']}" + (f" {s['texture_size'][0]}x{s['texture_size'][1]}"
                                                if "texture_size" in s else "")
           + (", normals" if s["normals"] else ""))
@@ -106,6 +112,24 @@ def _info(args) -> int:
     print(f"workspace    min {s['workspace_min']}  max {s['workspace_max']}  (candidates keep "
           f"{s['required_clearance']:.2f} m inside it)")
     return 0
+
+
+def _up_axis_line(s: dict) -> str:
+    """One line: the file's up axis, how it was found and (under auto) how sure the estimate is."""
+    est, mode = s.get("up_estimate"), s.get("up_axis_mode")
+    rot = s.get("rotation_deg") or [0.0, 0.0, 0.0]
+    turn = f", then rotated {rot} deg about x, y, z" if any(rot) else ""
+    if mode == "vector":
+        return f"file {s['file_up_axis']} -> world z (scene.up_vector){turn}"
+    if mode != "auto" or not est:
+        return f"file {s['file_up_axis']} -> world z{turn}"
+    vec = "(" + ", ".join(f"{x:.2f}" for x in est["up"]) + ")"
+    shares = (f"floor {est['floor_share']:.0%} + walls {est['wall_share']:.0%} of the area, "
+              f"floor spread {est['floor_spread_deg']:.1f} deg")
+    if est["confidence"] == "confident":
+        return f"auto: file {est['snapped'] or vec} -> world z, confident ({shares}){turn}"
+    return (f"auto: uncertain ({est['reason']}; estimate {vec}, {shares}): kept file z -> world z{turn}; "
+            "set --up-axis/--up-vector (scene.up_axis, scene.up_vector)")
 
 
 def _tour(args) -> int:

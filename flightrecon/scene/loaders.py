@@ -1,33 +1,46 @@
 """Load any supported mesh file into a `Scene` (z-up, meters), or fail with one clear SceneError.
 
 Formats: Replica's mesh.ply and any PLY with per-vertex colors (our reader), OBJ + MTL with a UV
-texture and GLB/GLTF (trimesh). Options scale units and rotate y-up files to z-up. A sidecar
+texture and GLB/GLTF (trimesh). Options scale units and rotate the file to z-up: its up axis is z,
+y, an explicit vector, or "auto" (estimated from the mesh's floor and walls, `scene.gravity`), then
+an optional extra rotation. A sidecar
 `scene_meta.json` written beside a procedural mesh restores its metadata (free flight region etc.).
 """
 
 from __future__ import annotations
 
 import json
+import logging
+import math
 import os
 from pathlib import Path
 
 import numpy as np
 
 from flightrecon.errors import SceneError
+from flightrecon.scene.gravity import AXIS_ROTATIONS, estimate_up, rotation_to_z
 from flightrecon.scene.replica_ply import read_ply
 from flightrecon.scene.types import Scene
 
 META_FILE = "scene_meta.json"
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf")
 _FRAME_KEYS = ("floor_z", "ceiling_z", "room_box", "free_box", "spawn", "openings")
+UP_AXES = ("z", "y", "auto")
+
+log = logging.getLogger(__name__)
 
 # y-up file -> z-up world: +90 deg about x, so file +y becomes world +z and file +z becomes world -y.
 _Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
 def load_scene(path: str | os.PathLike, unit_scale: float = 1.0, up_axis: str = "z",
-               name: str | None = None) -> Scene:
-    """Read a scene file (or a folder holding mesh.ply, Replica's layout) into the world frame."""
+               name: str | None = None, up_vector=None, rotation_deg=None) -> Scene:
+    """Read a scene file (or a folder holding mesh.ply, Replica's layout) into the world frame.
+
+    `up_axis`: "z", "y" or "auto" (estimated; an uncertain estimate keeps the file's axes, with a
+    warning). `up_vector` (3 numbers, file coordinates; None or empty: unused) overrides it.
+    `rotation_deg`: an extra rotation about world x, then y, then z (degrees) after the up axis.
+    What was applied, and the estimate, are in `scene.meta["up_axis"]`."""
     path = Path(path).expanduser()
     if path.is_dir() and (path / "mesh.ply").is_file():
         path = path / "mesh.ply"
@@ -35,8 +48,13 @@ def load_scene(path: str | os.PathLike, unit_scale: float = 1.0, up_axis: str = 
         raise SceneError(f"scene file not found: {path}")
     if not path.is_file():
         raise SceneError(f"scene path is not a file: {path}")
-    if up_axis not in ("z", "y"):
-        raise SceneError(f"scene {path}: up axis must be 'z' or 'y', got {up_axis!r}")
+    if up_axis not in UP_AXES:
+        raise SceneError(f"scene {path}: scene.up_axis must be 'z', 'y' or 'auto', got {up_axis!r}")
+    up_vector = _vector3(path, "scene.up_vector", up_vector)
+    rotation_deg = _vector3(path, "scene.rotation_deg", rotation_deg)
+    if up_vector is not None and not np.linalg.norm(up_vector) > 0:
+        raise SceneError(f"scene {path}: scene.up_vector is a zero-length vector {up_vector.tolist()}; "
+                         "give the file's up direction, e.g. [0, 1, 0], or [] to not use it")
     if not (np.isfinite(unit_scale) and unit_scale > 0):
         raise SceneError(f"scene {path}: unit scale must be a positive number, got {unit_scale!r}")
     suffix = path.suffix.lower()
@@ -53,7 +71,8 @@ def load_scene(path: str | os.PathLike, unit_scale: float = 1.0, up_axis: str = 
                   face_colors=d.get("face_colors"), uv=d.get("uv"), texture=d.get("texture"),
                   vertex_normals=d.get("vertex_normals"), source=path, source_up_axis=up_axis, meta=meta)
     validate(scene, path)
-    _to_world(scene, unit_scale, up_axis)
+    R = _orientation(scene, path, unit_scale, up_axis, up_vector, rotation_deg)
+    _to_world(scene, unit_scale, R)
     return scene
 
 
@@ -80,14 +99,78 @@ def validate(scene: Scene, path: Path | str) -> None:
         raise SceneError(f"scene file {path} is degenerate (all vertices at one point)")
 
 
-def _to_world(scene: Scene, unit_scale: float, up_axis: str) -> None:
-    R = _Y_UP_TO_Z_UP if up_axis == "y" else np.eye(3)
+def _vector3(path: Path, key: str, value) -> np.ndarray | None:
+    """None or an empty list -> None; otherwise exactly 3 finite numbers, else a SceneError naming `key`."""
+    if value is None or (isinstance(value, (list, tuple)) and len(value) == 0):
+        return None
+    try:
+        ok = len(value) == 3 and all(not isinstance(x, bool) for x in value)
+        arr = np.asarray(value, np.float64) if ok else None
+    except (TypeError, ValueError):
+        ok = False
+    if not ok or arr.shape != (3,) or not np.isfinite(arr).all():
+        raise SceneError(f"scene {path}: {key} must be 3 finite numbers (x, y, z), got {value!r}")
+    return arr
+
+
+def _rotation_xyz(deg: np.ndarray) -> np.ndarray:
+    """Rotation about world x, then y, then z by `deg` (degrees): Rz @ Ry @ Rx."""
+    ax, ay, az = (math.radians(float(d)) for d in deg)
+    rx = np.array([[1, 0, 0], [0, math.cos(ax), -math.sin(ax)], [0, math.sin(ax), math.cos(ax)]])
+    ry = np.array([[math.cos(ay), 0, math.sin(ay)], [0, 1, 0], [-math.sin(ay), 0, math.cos(ay)]])
+    rz = np.array([[math.cos(az), -math.sin(az), 0], [math.sin(az), math.cos(az), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def _axis_label(up: np.ndarray) -> str:
+    for name, R in AXIS_ROTATIONS.items():
+        if np.array_equal(R @ up, [0.0, 0.0, 1.0]) and np.count_nonzero(up) == 1:
+            return name
+    return "(" + ", ".join(f"{x:.3f}" for x in up) + ")"
+
+
+def _orientation(scene: Scene, path: Path, unit_scale: float, up_axis: str, up_vector: np.ndarray | None,
+                 rotation_deg: np.ndarray | None) -> np.ndarray:
+    """The file -> world rotation; records what was applied in scene.source_up_axis and meta["up_axis"]."""
+    estimate = None
+    if up_vector is not None:
+        mode, up = "vector", up_vector / np.linalg.norm(up_vector)
+        R = rotation_to_z(up)
+    elif up_axis == "auto":
+        estimate = estimate_up(scene.vertices, scene.faces, unit_scale)
+        mode = "auto"
+        if estimate.confident:
+            up, R = estimate.up, estimate.rotation
+        else:
+            up, R = np.array([0.0, 0.0, 1.0]), np.eye(3)
+            e = estimate.up
+            log.warning("scene %s: scene.up_axis = 'auto' is uncertain (%s; estimate (%.3f, %.3f, %.3f)); keeping "
+                        "the file's z axis as up: set scene.up_axis or scene.up_vector", path, estimate.reason, *e)
+    else:
+        mode = up_axis
+        up = np.array([0.0, 1.0, 0.0]) if up_axis == "y" else np.array([0.0, 0.0, 1.0])
+        R = _Y_UP_TO_Z_UP if up_axis == "y" else np.eye(3)
+    if rotation_deg is not None and np.any(rotation_deg != 0):
+        R = _rotation_xyz(rotation_deg) @ R
+    scene.source_up_axis = _axis_label(up)
+    scene.meta["up_axis"] = {
+        "mode": mode, "up": [float(x) for x in up],
+        "rotation_deg": [float(x) for x in rotation_deg] if rotation_deg is not None else [0.0, 0.0, 0.0],
+        "rotation": [[float(x) for x in row] for row in R],
+        "estimate": estimate.to_dict() if estimate is not None else None}
+    return R
+
+
+def _to_world(scene: Scene, unit_scale: float, R: np.ndarray) -> None:
     scene.vertices = (scene.vertices @ R.T) * unit_scale
     if scene.vertex_normals is not None:
         scene.vertex_normals = scene.vertex_normals @ R.T
-    if up_axis != "z" or unit_scale != 1.0:
-        for key in _FRAME_KEYS:  # sidecar values were written in the file's own frame
-            scene.meta.pop(key, None)
+    rotated = not np.array_equal(R, np.eye(3))
+    if rotated or unit_scale != 1.0:
+        dropped = [key for key in _FRAME_KEYS if scene.meta.pop(key, None) is not None]
+        if dropped and rotated:  # sidecar values were written in the file's own frame
+            log.warning("scene %s: dropped the metadata %s written in the file's frame, which is rotated on "
+                        "loading; floor and ceiling come from the geometry", scene.source, ", ".join(dropped))
 
 
 def _read_trimesh(path: Path) -> dict:

@@ -47,5 +47,6 @@ def procedural_scene(name: str, seed: int = 0, cache_dir: str = "") -> Scene:
 def scene_from_config(cfg) -> Scene:
     """`cfg` is a config.SceneConfig: `path` set -> that file; otherwise the procedural `name`."""
     if cfg.path:
-        return load_scene(cfg.path, unit_scale=cfg.unit_scale, up_axis=cfg.up_axis, name=cfg.name or None)
+        return load_scene(cfg.path, unit_scale=cfg.unit_scale, up_axis=cfg.up_axis, name=cfg.name or None,
+                          up_vector=cfg.up_vector, rotation_deg=cfg.rotation_deg)
     return procedural_scene(cfg.name, cfg.seed, cfg.cache_dir)

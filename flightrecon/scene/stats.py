@@ -31,9 +31,20 @@ def free_space(scene: Scene, pitch: float = 0.1) -> dict:
     return {"free_volume_m3": float(sizes.max() * pitch ** 3), "enclosed": True}
 
 
+def _up_axis(scene: Scene) -> dict:
+    """How the file was turned z-up: the mode (z, y, auto, vector), the file's up vector, the extra
+    rotation and, under auto, the estimate (`scene.gravity.GravityEstimate.to_dict`)."""
+    up = scene.meta.get("up_axis") or {}
+    default = {"y": [0.0, 1.0, 0.0]}.get(scene.source_up_axis, [0.0, 0.0, 1.0])
+    return {"up_axis_mode": up.get("mode", scene.source_up_axis),
+            "up_vector": [round(float(x), 5) for x in up.get("up", default)],
+            "rotation_deg": [float(x) for x in up.get("rotation_deg", [0.0, 0.0, 0.0])],
+            "up_estimate": up.get("estimate")}
+
+
 def summary(scene: Scene, with_free_space: bool = True) -> dict:
-    """Counts, bounds (m), size, up axis of the file, appearance, floor and ceiling heights (None: no
-    ceiling) and (optionally) free volume."""
+    """Counts, bounds (m), size, up axis of the file (and how it was found), appearance, floor and
+    ceiling heights (None: no ceiling) and (optionally) free volume."""
     lo, hi = scene.bounds
     out = {
         "name": scene.name,
@@ -45,6 +56,7 @@ def summary(scene: Scene, with_free_space: bool = True) -> dict:
         "bounds_max": [round(float(x), 4) for x in hi],
         "size": [round(float(x), 4) for x in hi - lo],
         "file_up_axis": scene.source_up_axis,
+        **_up_axis(scene),
         "appearance": scene.appearance,
         "normals": scene.vertex_normals is not None,
         "surface_area_m2": round(float(scene.trimesh.area), 3),
