@@ -149,7 +149,7 @@ class Recorder:
         self.capture_time = mission.flight.time
         self._handler = _WarningsToEvents(self)
         logging.getLogger("flightrecon").addHandler(self._handler)
-        self.rec.send_blueprint(default_blueprint())
+        self.rec.send_blueprint(default_blueprint(mission.workspace))
         self._static()
         if mission.state.frame == 0 and len(mission.flight.log):
             self._poses(mission.flight.log.columns(), 0)  # the take-off
@@ -278,8 +278,10 @@ class Recorder:
         colors = np.where(near[:, None], np.array([230, 60, 40]), np.array([40, 180, 60])).astype(np.uint8)
         flown_s = float(cols["t"][-1] - cols["t"][0])
         label = f"flown {flown_s:.1f} s" + ("" if chosen is None else f" (planned {chosen.duration:.1f} s)")
-        self.rec.log("world/flown", rr.LineStrips3D([path], radii=0.008, colors=[(40, 180, 60)], labels=[label]))
-        self.rec.log("world/flown/samples", rr.Points3D(path, radii=0.012, colors=colors))
+        # the label shows on hover/selection only: drawn, the accumulating labels would cover the path
+        self.rec.log("world/flown", rr.LineStrips3D([path], radii=0.015, colors=[(40, 180, 60)], labels=[label],
+                                                    show_labels=False))
+        self.rec.log("world/flown/samples", rr.Points3D(path, radii=0.022, colors=colors))
 
     def _poses(self, cols: dict, frame: int) -> tuple[np.ndarray, np.ndarray]:
         """Body pose and clearance at `record_pose_rate_hz` of sim time; on the frame timeline they
@@ -332,19 +334,25 @@ class _WarningsToEvents(logging.Handler):
                                                    level=rr.TextLogLevel.WARN))
 
 
-def default_blueprint() -> rrb.Blueprint:
+def default_blueprint(workspace: np.ndarray | None = None) -> rrb.Blueprint:
     """3D view on the left; camera and rendered images, plots and the event log on the right.
 
     The flown path accumulates (every past frame up to the time cursor, on either timeline);
     everything else shows the latest state. The reliability-colored map is in the view but hidden:
-    toggle its eye in the blueprint panel (and hide world/map/splats) to switch coloring."""
+    toggle its eye in the blueprint panel (and hide world/map/splats) to switch coloring.
+    With the flight `workspace` (2, 3) the 3D view's eye starts inside it, at an upper corner looking
+    at the floor's center: rerun's default eye looks at the scene's bounds from outside, so a
+    closed room's walls and ceiling hide the flight."""
     past = rrb.VisibleTimeRanges([
         rrb.VisibleTimeRange(tl, start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.cursor_relative())
         for tl in ("frame", "sim_time")])
     view3d = rrb.Spatial3DView(
         origin="world", name="flight",
         overrides={"world/flown": past, "world/flown/samples": past,
-                   "world/map/reliability": rrb.EntityBehavior(visible=False)})
+                   "world/map/reliability": rrb.EntityBehavior(visible=False)},
+        eye_controls=None if workspace is None else rrb.EyeControls3D(
+            position=np.asarray(workspace[1], float), eye_up=[0.0, 0.0, 1.0],
+            look_target=[*np.mean(workspace, 0)[:2], float(workspace[0][2])]))
     images = rrb.Grid(
         rrb.Spatial2DView(origin="world/camera", contents=["+ $origin/image"], name="captured color"),
         rrb.Spatial2DView(origin="world/camera", contents=["+ $origin/depth"], name="captured depth"),

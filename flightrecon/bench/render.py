@@ -1,4 +1,5 @@
-"""2DGS rasterizer speed: C++ cpu backend vs the vectorized torch reference on a realistic map.
+"""2DGS rasterizer speed: C++ cpu backend vs the vectorized torch reference on a realistic map
+(and, with `--backends cpu,cuda` on a GPU machine, gsplat's cuda backend on the same map and cameras).
 
 The map stands in for one the online mapper builds from RGB-D frames: splats sampled on the surfaces
 of a procedural scene (area-weighted, so spacing is uniform: sqrt(area / N), 4 cm for 200k splats
@@ -7,7 +8,8 @@ mapper's nearest-neighbour rule) with opacity 0.7. Workloads: forward and forwar
 mapping outputs (RGB, alpha, depth, normal, distortion) at 640x480 and 160x120, and the
 view-selection batch (198 cameras, one per-camera channel, 160x120, forward only). The reference
 is dense (every splat against every pixel), so it runs on a downscaled copy of the same camera and
-its time is scaled linearly in pixels to the full size (reported both ways). Medians over repeats.
+its time is scaled linearly in pixels to the full size (reported both ways). Medians over repeats;
+cuda timings wait for the device (torch.cuda.synchronize) and have no reference or kernel profile rows.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import numpy as np
 import torch
 
 from flightrecon.bench.common import report, time_call
+from flightrecon.errors import FlightReconError
 from flightrecon.geometry import camera_pose, intrinsics, invert_pose
 from flightrecon.render import render
 from flightrecon.render.extension import load
@@ -33,6 +36,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--batch", type=int, default=198, help="cameras in the view-selection batch")
     p.add_argument("--ref-pixels", type=int, default=1200,
                    help="pixels of the downscaled image the dense reference renders")
+    p.add_argument("--backends", default="cpu",
+                   help="comma separated: cpu (with the dense reference as its peer), cuda (gsplat; needs a GPU)")
 
 
 def surface_splats(scene_name: str, n: int, seed: int = 0) -> list[torch.Tensor]:
@@ -80,13 +85,28 @@ def _batch_cameras(scene_name: str, count: int, width: int, height: int, seed: i
 
 def _fwd(splats, vm, K, w, h, outputs, backend="cpu"):
     with torch.no_grad():
-        return render(*splats, vm, K, w, h, outputs=outputs, backend=backend)
+        out = render(*splats, vm, K, w, h, outputs=outputs, backend=backend)
+    if backend == "cuda":
+        torch.cuda.synchronize()  # time the kernels, not their launch
+    return out
 
 
-def _fwd_bwd(splats, vm, K, w, h):
+def _fwd_bwd(splats, vm, K, w, h, backend="cpu"):
     ps = [t.clone().requires_grad_(True) for t in splats]
-    out = render(*ps, vm, K, w, h, outputs=MAPPING, backend="cpu")
+    out = render(*ps, vm, K, w, h, outputs=MAPPING, backend=backend)
     sum(getattr(out, k).sum() for k in MAPPING).backward()
+    if backend == "cuda":
+        torch.cuda.synchronize()
+
+
+def _backends(spec: str) -> list[str]:
+    names = [b.strip() for b in spec.split(",") if b.strip()]
+    bad = [b for b in names if b not in ("cpu", "cuda")]
+    if bad or not names:
+        raise FlightReconError(f"bench render: --backends {spec!r}: choose from cpu, cuda (comma separated)")
+    if "cuda" in names and not torch.cuda.is_available():
+        raise FlightReconError("bench render: --backends cuda needs a CUDA device, and torch sees none")
+    return names
 
 
 def _stats_row(label: str, stats: dict, threads: int, pixels: int) -> dict:
@@ -107,43 +127,60 @@ def _stats_row(label: str, stats: dict, threads: int, pixels: int) -> dict:
 
 
 def run(args) -> dict:
+    backends = _backends(args.backends)
     ext = load()
     threads = ext.num_threads()
     rows, profile = [], []
     for n in [int(s) for s in args.sizes.split(",")]:
-        splats = surface_splats(args.scene, n)
-        for (w, h) in ((640, 480), (160, 120)):
-            vm, K = _camera(w, h)
-            t = time_call(lambda: _fwd(splats, vm, K, w, h, MAPPING), repeat=args.repeat)
-            profile.append(_stats_row(f"{n} {w}x{h} forward", ext.last_stats(), threads, w * h))
-            rows.append({"splats": n, "image": f"{w}x{h}", "workload": "forward", "ms": t["median_s"] * 1e3})
-            tb = time_call(lambda: _fwd_bwd(splats, vm, K, w, h), repeat=args.repeat)
-            profile.append(_stats_row(f"{n} {w}x{h} backward", ext.last_stats(), threads, w * h))
-            rows.append({"splats": n, "image": f"{w}x{h}", "workload": "forward+backward",
-                         "ms": tb["median_s"] * 1e3})
-            # dense reference on a downscaled copy of the same camera, scaled back linearly in pixels
-            s = max(1, int(round((w * h / args.ref_pixels) ** 0.5)))
-            rw, rh = w // s, h // s
-            Kr = K.clone()
-            Kr[:, :2] /= s
-            tr = time_call(lambda: _fwd(splats, vm, Kr, rw, rh, MAPPING, "reference"), repeat=1, warmup=0)
-            tc = time_call(lambda: _fwd(splats, vm, Kr, rw, rh, MAPPING), repeat=args.repeat)
-            scaled = tr["median_s"] * (w * h) / (rw * rh)
-            rows.append({"splats": n, "image": f"{w}x{h}", "workload": f"reference forward ({rw}x{rh} run, scaled)",
-                         "ms": scaled * 1e3, "speedup_vs_ref": scaled / t["median_s"],
-                         "speedup_same_size": tr["median_s"] / tc["median_s"]})
-        vm, K = _batch_cameras(args.scene, args.batch, 160, 120)
-        g = torch.Generator().manual_seed(0)
-        per_cam = torch.rand(args.batch, n, 1, generator=g)
-        batch_splats = splats[:4] + [per_cam]
-        t = time_call(lambda: _fwd(batch_splats, vm, K, 160, 120, ("features",)), repeat=args.repeat)
-        profile.append(_stats_row(f"{n} 160x120 x{args.batch} batch", ext.last_stats(), threads,
-                                  args.batch * 160 * 120))
-        rows.append({"splats": n, "image": "160x120", "workload": f"{args.batch}-camera 1-channel batch",
-                     "ms": t["median_s"] * 1e3})
+        host_splats = surface_splats(args.scene, n)
+        for b in backends:
+            _run_backend(args, b, n, host_splats, ext, threads, rows, profile)
     targets = {"640x480 200k forward": "<= 100 ms", "640x480 200k forward+backward": "<= 300 ms",
                "198-camera batch 160x120": "<= 300 ms", "vs reference": ">= 50x"}
     report("render", rows, args.out, extra={"profile_ms": profile, "targets": targets,
                                             "omp_threads": threads})
     report("render-profile", profile)
     return {"rows": rows, "profile": profile}
+
+
+def _run_backend(args, backend: str, n: int, host_splats, ext, threads: int, rows: list, profile: list) -> None:
+    """One backend's rows for one map size; the cpu backend also its kernel profile and reference peer."""
+    dev = "cuda" if backend == "cuda" else "cpu"
+    cpu = backend == "cpu"
+    splats = [t.to(dev) for t in host_splats]
+    for (w, h) in ((640, 480), (160, 120)):
+        vm, K = (x.to(dev) for x in _camera(w, h))
+        t = time_call(lambda: _fwd(splats, vm, K, w, h, MAPPING, backend), repeat=args.repeat)
+        if cpu:
+            profile.append(_stats_row(f"{n} {w}x{h} forward", ext.last_stats(), threads, w * h))
+        rows.append({"backend": backend, "splats": n, "image": f"{w}x{h}", "workload": "forward",
+                     "ms": t["median_s"] * 1e3})
+        tb = time_call(lambda: _fwd_bwd(splats, vm, K, w, h, backend), repeat=args.repeat)
+        if cpu:
+            profile.append(_stats_row(f"{n} {w}x{h} backward", ext.last_stats(), threads, w * h))
+        rows.append({"backend": backend, "splats": n, "image": f"{w}x{h}", "workload": "forward+backward",
+                     "ms": tb["median_s"] * 1e3})
+        if not cpu:
+            continue
+        # dense reference on a downscaled copy of the same camera, scaled back linearly in pixels
+        s = max(1, int(round((w * h / args.ref_pixels) ** 0.5)))
+        rw, rh = w // s, h // s
+        Kr = K.clone()
+        Kr[:, :2] /= s
+        tr = time_call(lambda: _fwd(splats, vm, Kr, rw, rh, MAPPING, "reference"), repeat=1, warmup=0)
+        tc = time_call(lambda: _fwd(splats, vm, Kr, rw, rh, MAPPING), repeat=args.repeat)
+        scaled = tr["median_s"] * (w * h) / (rw * rh)
+        rows.append({"backend": backend, "splats": n, "image": f"{w}x{h}",
+                     "workload": f"reference forward ({rw}x{rh} run, scaled)",
+                     "ms": scaled * 1e3, "speedup_vs_ref": scaled / t["median_s"],
+                     "speedup_same_size": tr["median_s"] / tc["median_s"]})
+    vm, K = (x.to(dev) for x in _batch_cameras(args.scene, args.batch, 160, 120))
+    g = torch.Generator().manual_seed(0)
+    per_cam = torch.rand(args.batch, n, 1, generator=g).to(dev)
+    batch_splats = splats[:4] + [per_cam]
+    t = time_call(lambda: _fwd(batch_splats, vm, K, 160, 120, ("features",), backend), repeat=args.repeat)
+    if cpu:
+        profile.append(_stats_row(f"{n} 160x120 x{args.batch} batch", ext.last_stats(), threads,
+                                  args.batch * 160 * 120))
+    rows.append({"backend": backend, "splats": n, "image": "160x120",
+                 "workload": f"{args.batch}-camera 1-channel batch", "ms": t["median_s"] * 1e3})

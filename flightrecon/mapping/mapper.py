@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from flightrecon.config import MapperConfig
+from flightrecon.errors import FlightReconError
 from flightrecon.geometry import pixel_rays
 from flightrecon.mapping import init as splat_init
 from flightrecon.mapping.frames import StoredFrame, compact_frame, expand_frame
@@ -54,6 +55,9 @@ def seed_share(cfg: MapperConfig, width: int, height: int) -> float:
 
 def default_device(backend: str) -> torch.device:
     """Where the map lives: the GPU when the rasterizer backend will be gsplat's CUDA one."""
+    if backend == "cuda" and not torch.cuda.is_available():
+        raise FlightReconError("mapper.backend = cuda, but torch sees no CUDA device (a CPU build of torch, "
+                               "or no GPU): use mapper.backend = auto or cpu")
     if backend == "cuda" or (backend == "auto" and torch.cuda.is_available()):
         return torch.device("cuda")
     return torch.device("cpu")
