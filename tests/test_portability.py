@@ -8,6 +8,7 @@ import csv
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -63,3 +64,21 @@ def test_kernels_and_demo_without_avx512(tmp_path):
                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=1800)
     assert p.returncode == 0, p.stdout[-4000:] + p.stderr[-2000:]
     _fly_demo(tmp_path / "run", env)
+
+
+def test_a_killed_builds_lock_is_cleared_and_a_live_ones_kept(tmp_path):
+    # torch's cpp_extension waits forever on build/lock; a build killed midway leaves it behind
+    assert not extension.clear_stale_lock(tmp_path)
+    lock = tmp_path / "lock"
+    lock.touch()
+    assert not extension.clear_stale_lock(tmp_path) and lock.exists()  # a build may be running
+    old = time.time() - 2 * extension.STALE_LOCK_S
+    os.utime(lock, (old, old))
+    assert extension.clear_stale_lock(tmp_path) and not lock.exists()
+
+
+def test_the_cache_key_names_the_checkout(monkeypatch):
+    base = extension.source_hash()
+    monkeypatch.setattr(extension, "CSRC", extension.CSRC.parent / "elsewhere" / "csrc")
+    monkeypatch.setattr(extension, "SOURCES", list(extension.SOURCES))  # same files, read from here
+    assert extension.source_hash() != base

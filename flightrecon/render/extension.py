@@ -19,14 +19,18 @@ FlightReconError naming what is missing.
 from __future__ import annotations
 
 import hashlib
+import logging
 import os
 import platform
 import shlex
 import shutil
+import time
 from functools import lru_cache
 from pathlib import Path
 
 from flightrecon.errors import FlightReconError
+
+log = logging.getLogger(__name__)
 
 CSRC = Path(__file__).resolve().parents[2] / "csrc"
 SOURCES = [CSRC / name for name in (
@@ -61,6 +65,9 @@ def cpu_features() -> str:
 
 def source_hash() -> str:
     h = hashlib.sha256()
+    # the checkout's path too: torch's build.ninja names the sources by absolute path, so two
+    # checkouts sharing one build folder would rebuild it from scratch each time the other ran
+    h.update(str(CSRC).encode())
     for src in SOURCES + HEADERS:
         h.update(src.read_bytes())
     h.update(" ".join(cflags()).encode())
@@ -91,6 +98,24 @@ def _check_toolchain() -> None:
         raise FlightReconError("cannot build the C++ rasterizer: ninja not found; pip install ninja")
 
 
+STALE_LOCK_S = 600.0  # a build takes 1-3 minutes on 2 cores
+
+
+def clear_stale_lock(build: Path, max_age_s: float = STALE_LOCK_S) -> bool:
+    """Remove torch's build lock if it is older than any build: a build killed midway leaves it, and
+    every later load would then wait for it forever, silently. True if one was removed."""
+    lock = build / "lock"
+    try:
+        age = time.time() - lock.stat().st_mtime
+    except FileNotFoundError:
+        return False
+    if age <= max_age_s:
+        return False
+    log.warning("removing the stale build lock %s (%.0f s old: a build was killed midway)", lock, age)
+    lock.unlink(missing_ok=True)
+    return True
+
+
 @lru_cache(maxsize=1)
 def load(verbose: bool = False):
     """The compiled module (forward, backward, num_threads); builds it on first use."""
@@ -101,6 +126,7 @@ def load(verbose: bool = False):
     _check_toolchain()
     build = cache_dir() / source_hash()
     build.mkdir(parents=True, exist_ok=True)
+    clear_stale_lock(build)
     try:
         return cpp_extension.load(name="flightrecon_raster", sources=[str(s) for s in SOURCES],
                                   extra_cflags=cflags(), extra_ldflags=["-fopenmp"],
