@@ -189,6 +189,10 @@ class SelectorConfig:
     scoring_width: int = _f(160, 1, 8192)
     scoring_height: int = _f(120, 1, 8192)
     measurement_prior: str = _f("one", choices=("one", "depth_noise"))
+    gain_floor: float = _f(1e-3, 0.0, 1e6, doc="2D GauSS-MI scoring: a first pass stops each tile after its "
+                           "last splat whose information gain reaches this, bounding each candidate's MI from "
+                           "above and below; candidates that can still win are scored again exactly, so the "
+                           "chosen view is the exact argmax. 0: every candidate exactly")
 
 
 @dataclass(frozen=True)
@@ -235,6 +239,8 @@ class OutputConfig:
     run_root: str = _f("runs")
     record: bool = _f(True, doc="write recording.rrd")
     checkpoint: bool = _f(True)
+    ply_extras: bool = _f(False, doc="map.ply (and snapshots) also hold our own per-splat columns: raw colors, "
+                          "two-sided reliability, frame created, times observed; off: the 2DGS columns alone")
     record_map_every: int = _f(5, 1, None, doc="log the splat map every k frames (and at the last frame)")
     record_map_max_splats: int = _f(60000, 1, None, doc="splats logged per map snapshot (an even stride beyond)")
     record_mesh_cell: float = _f(0.06, 0.005, 1.0, doc="vertex-clustering cell of the recorded scene mesh (m)")

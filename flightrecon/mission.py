@@ -167,7 +167,6 @@ class Mission:
         row: dict = {"frame": self.state.frame}
         t = time.perf_counter()
         rgb, depth, T_wc, _ = self.flight.capture(self.camera)
-        obs = Observation(self.state.frame, rgb, depth, self.K, T_wc)
         body = self.flight.state
         self.state.visited.append((body.position.copy(), float(body.yaw)))
         row["t_capture"] = time.perf_counter() - t
@@ -180,12 +179,15 @@ class Mission:
         row["t_map"] = time.perf_counter() - t
         t = time.perf_counter()
         with self._stage("selector update"):
+            # the one render of the map at the captured pose: selector update, frame quality, recording
+            obs = Observation(self.state.frame, rgb, depth, self.K, T_wc,
+                              self.mapper.render_capture(T_wc, self.K, depth.shape[1], depth.shape[0]))
             self.selector.observe(self.mapper, obs)
         row["t_select_update"] = time.perf_counter() - t
         row["reliable_share_ema"] = self._update_stopping()
         row["n_splats"] = len(self.mapper.map)
         with self._stage("frame quality"):
-            row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(self.mapper, obs)
+            row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(obs.view.output, rgb, depth)
         self.recorder.capture(obs)
         self.planner.integrate(depth, self.K, T_wc, body_position=body.position)
 
@@ -195,7 +197,8 @@ class Mission:
                 q = self.evaluation.evaluate(self.mapper)
             row["eval_psnr"], row["eval_depth_l1_cm"] = q["psnr"], q["depth_l1_cm"]
             if cfg.evaluation.snapshots and not last:  # mesh metrics need a TSDF: `eval` scores them later
-                save_map(self.mapper.map, self.run_dir / SNAPSHOTS / f"map_{self.state.frame:05d}.ply")
+                save_map(self.mapper.map, self.run_dir / SNAPSHOTS / f"map_{self.state.frame:05d}.ply",
+                         extras=cfg.output.ply_extras)
         if last:
             return row
         self._choose_and_fly(row)
@@ -332,7 +335,7 @@ class Mission:
         write_text(self.run_dir / "events.log", "".join(e + "\n" for e in self.state.events))
 
     def _finish(self) -> dict:
-        save_map(self.mapper.map, self.run_dir / "map.ply")
+        save_map(self.mapper.map, self.run_dir / "map.ply", extras=self.cfg.output.ply_extras)
         write_trajectory_csv(self.run_dir / "trajectory.csv", self.flight.log.columns())
         final = self.evaluation.evaluate(self.mapper)
         rec = self.state.records

@@ -191,11 +191,11 @@ class Recorder:
         q = self.out.record_jpeg_quality
         rec.log("world/camera/image", rr.Image(_to_u8(obs.rgb)).compress(jpeg_quality=q))
         rec.log("world/camera/depth", _depth_png(obs.depth))
-        H, W = obs.depth.shape
-        r = m.mapper.render_view(obs.T_wc, obs.K, W, H, outputs=("features", "depth", "normal"))
-        rec.log("rendered/color", rr.Image(_to_u8(r.features[0].clamp(0, 1).cpu().numpy())).compress(jpeg_quality=q))
-        rec.log("rendered/depth", _depth_png(r.depth[0, ..., 0].cpu().numpy()))
-        rec.log("rendered/normal", rr.Image(_to_u8(0.5 + 0.5 * r.normal[0].cpu().numpy())).compress(jpeg_quality=q))
+        r = obs.view.output  # the loop's render of the map at this pose
+        color, depth, normal = (t[0].detach().cpu().numpy() for t in (r.features, r.depth, r.normal))
+        rec.log("rendered/color", rr.Image(_to_u8(color.clip(0, 1))).compress(jpeg_quality=q))
+        rec.log("rendered/depth", _depth_png(depth[..., 0]))
+        rec.log("rendered/normal", rr.Image(_to_u8(0.5 + 0.5 * normal)).compress(jpeg_quality=q))
         last = m.state.frame == m.cfg.budget.frames - 1
         if m.state.frame % self.out.record_map_every == 0 or last:
             self._map()

@@ -13,7 +13,7 @@ import torch
 from flightrecon.active import gaussmi2d, reliability
 from flightrecon.config import ReliabilityConfig
 from flightrecon.geometry import camera_pose, intrinsics, rotmat_to_quat
-from flightrecon.render import render
+from flightrecon.render import render, render_view_with_sums
 
 CFG = ReliabilityConfig()
 W, H = 24, 18
@@ -51,8 +51,9 @@ def test_pixel_sums_equal_brute_force(backend):
     s = _wall()
     T = _cam([0.0, 0.1, 1.2], 0.0)
     v = torch.rand(H, W, generator=torch.Generator().manual_seed(0))
-    sums = reliability.splat_pixel_sums(s["means"], s["quats"], s["log_scales"], s["opacity_logits"],
-                                        torch.linalg.inv(T), K, v, 0.05, 10.0, backend)
+    view = render_view_with_sums(s["means"], s["quats"], s["log_scales"], s["opacity_logits"], s["colors"],
+                                 torch.linalg.inv(T), K, W, H, backend=backend)
+    sums = view.splat_sums(v)
     Tij = _weights(s, T, K, backend)
     brute = torch.tensor([sum(float(v[j, k] * Tij[i, j, k]) for j in range(H) for k in range(W))
                           for i in range(Tij.shape[0])])
@@ -69,8 +70,9 @@ def test_update_sides_and_gating(backend):
 
     def update(T):
         depth = torch.zeros(H, W, 1)  # no valid depth: the color term alone decides L
-        return reliability.update_from_frame(s, rel0, rgb, depth, T, K, CFG, ssim_weight=0.0,
-                                             near=0.05, far=10.0, backend=backend)[0]
+        view = render_view_with_sums(s["means"], s["quats"], s["log_scales"], s["opacity_logits"], s["colors"],
+                                     torch.linalg.inv(T), K, W, H, backend=backend)
+        return reliability.update_from_frame(view, s, rel0, rgb, depth, T, K, CFG, ssim_weight=0.0)[0]
 
     front = update(_cam([0.0, 0.0, 1.2], 0.0))  # head-on, rendered color equals observed where opaque
     assert (front[:, 0] > 0).any() and (front[:, 1] == 0).all()
@@ -133,3 +135,20 @@ def test_depth_noise_prior_is_one_at_best_range_and_decreasing():
     d = torch.tensor([0.0, 0.3, 0.4, 1.0, 3.0])
     p = gaussmi2d.depth_noise_prior(d)
     assert p[0] == 0 and p[1] == 1 and p[2] == 1 and 1 > p[3] > p[4] > 0
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_shared_render_gives_the_sums_of_a_unit_feature_render(backend):
+    """The loop's one render at the capture pose (colors, depth, normal) gives the same per-splat sums
+    as a render of a unit feature of its own (the reliability update's render before it was shared)."""
+    s = _wall(4)
+    T = _cam([0.1, 0.05, 1.1], 0.1)
+    v = torch.rand(H, W, generator=torch.Generator().manual_seed(2)) * 9.0
+    view = render_view_with_sums(s["means"], s["quats"], s["log_scales"], s["opacity_logits"], s["colors"],
+                                 torch.linalg.inv(T), K, W, H, backend=backend)
+    ones = torch.ones(len(s["means"]), 1, requires_grad=True)
+    out = render(s["means"], s["quats"], s["log_scales"], s["opacity_logits"], ones, torch.linalg.inv(T)[None],
+                 K[None], W, H, outputs=("features",), backend=backend)
+    (unit,) = torch.autograd.grad((out.features[0, ..., 0] * v).sum(), ones)
+    assert torch.equal(view.splat_sums(v), unit[:, 0])
+    assert torch.equal(view.splat_sums(2 * v), 2 * unit[:, 0])  # the graph serves a second question

@@ -28,9 +28,9 @@ def _map(n: int = 257) -> GaussianMap:
     return gmap
 
 
-def test_round_trip_is_bit_exact(tmp_path):
+def test_round_trip_with_extras_is_bit_exact(tmp_path):
     gmap = _map()
-    path = save_map(gmap, tmp_path / "map.ply")
+    path = save_map(gmap, tmp_path / "map.ply", extras=True)
     back = load_map(path)
     assert len(back) == len(gmap)
     for name in COLUMNS:
@@ -38,9 +38,23 @@ def test_round_trip_is_bit_exact(tmp_path):
         assert torch.equal(back[name], gmap[name]), name
 
 
-def test_file_has_2dgs_layout_and_opens_in_trimesh(tmp_path):
+def test_default_file_holds_the_2dgs_columns_alone(tmp_path):
     gmap = _map()
     path = save_map(gmap, tmp_path / "map.ply")
+    v = PlyData.read(str(path))["vertex"]
+    assert [p.name for p in v.properties] == TWO_DGS
+    header = path.read_bytes().index(b"end_header\n") + len(b"end_header\n")
+    assert path.stat().st_size - header == 64 * len(gmap)
+    back = load_map(path)
+    for name in ("means", "quats", "log_scales", "opacity_logits"):
+        assert torch.equal(back[name], gmap[name]), name
+    torch.testing.assert_close(back["colors"], gmap["colors"], rtol=0, atol=1e-6)  # through f_dc in float32
+    assert torch.all(back["reliability"] == 0) and torch.all(back["n_observed"] == 0)
+
+
+def test_file_has_2dgs_layout_and_opens_in_trimesh(tmp_path):
+    gmap = _map()
+    path = save_map(gmap, tmp_path / "map.ply", extras=True)
     v = PlyData.read(str(path))["vertex"]
     names = [p.name for p in v.properties]
     assert names[:16] == TWO_DGS

@@ -72,8 +72,8 @@ def _fly(args: list[str], **kw) -> subprocess.Popen:
 
 @pytest.mark.slow
 def test_kill_and_resume_equals_uninterrupted(tmp_path):
-    sets = [a for s in TINY + ["budget.frames=5", "budget.initial_views=2", "evaluation.every=0"]
-            for a in ("--set", s)]
+    extra = ["budget.frames=5", "budget.initial_views=2", "evaluation.every=0", "output.ply_extras=true"]
+    sets = [a for s in TINY + extra for a in ("--set", s)]
     whole, broken = tmp_path / "whole", tmp_path / "broken"
     p = _fly(["demo", "--quiet", "--out", str(whole), *sets])
     assert p.wait(timeout=600) == 0, p.stdout.read()

@@ -37,8 +37,8 @@ import numpy as np
 import torch
 
 from flightrecon.active.gaussmi2d import scoring_intrinsics
-from flightrecon.active.reliability import observation_weights, splat_normals, splat_pixel_sums
-from flightrecon.active.selectors import GaussMI2D, Observation, register, splats_of
+from flightrecon.active.reliability import observation_weights, splat_normals
+from flightrecon.active.selectors import GaussMI2D, Observation, capture_view, register, splats_of
 from flightrecon.config import ScenarioConfig
 from flightrecon.geometry import intrinsics, pixel_rays, yaw_of_camera
 from flightrecon.mapping.mapper import OnlineMapper
@@ -123,18 +123,14 @@ class GaussMISelector(_Scoring):
             return {}
         sp = splats_of(mapper)
         T = _t(obs.T_wc, dev)
-        K = _t(obs.K, dev)
-        H, W = obs.depth.shape
-        viewmat = torch.linalg.inv(T)
-        out = _render(sp, sp["colors"], viewmat[None], K, W, H, mapper, ("features", "depth"),
-                      self.cfg.mapper.backend)
+        view = capture_view(mapper, obs)
+        out = view.output
         depth_obs = _t(obs.depth, dev)[..., None]
         valid = depth_obs[..., 0] > 0
         L = gaussmi_loss_image(out.features[0], out.depth[0], _t(obs.rgb, dev), depth_obs)
         v = torch.where(valid, -torch.log((b.gaussmi_lambda_L * L).clamp_min(1e-4)), 0.0)
-        args = (sp["means"], sp["quats"], sp["log_scales"], sp["opacity_logits"], viewmat, K)
-        S = splat_pixel_sums(*args, v, mapper.near, mapper.far, self.cfg.mapper.backend)
-        cover = splat_pixel_sums(*args, valid.float(), mapper.near, mapper.far, self.cfg.mapper.backend)
+        S = view.splat_sums(v)
+        cover = view.splat_sums(valid.float())
         c = direction_weights(sp["means"], T[None, :3, 3])[0]
         delta = (b.gaussmi_lambda_T * c * S[:, None]).clamp(-100.0, 100.0)
         delta = torch.where((cover >= 1.0)[:, None], delta, 0.0)
@@ -327,11 +323,9 @@ class ActiveGSSelector(_Scoring):
             return {}
         dev = mapper.device
         sp = splats_of(mapper)
-        T, K = _t(obs.T_wc, dev), _t(obs.K, dev)
+        T = _t(obs.T_wc, dev)
         H, W = obs.depth.shape
-        weight = splat_pixel_sums(sp["means"], sp["quats"], sp["log_scales"], sp["opacity_logits"],
-                                  torch.linalg.inv(T), K, torch.ones(H, W, device=dev), mapper.near, mapper.far,
-                                  self.cfg.mapper.backend)
+        weight = capture_view(mapper, obs).splat_sums(torch.ones(H, W, device=dev))
         to_cam = T[:3, 3][None] - sp["means"]
         dist = to_cam.norm(dim=-1)
         v = to_cam / dist.clamp_min(1e-9)[:, None]

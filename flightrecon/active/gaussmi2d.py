@@ -4,8 +4,10 @@ For candidate n, each splat's information gain is f_n^[i] = -|w_n^[i]| log P(r_o
 with the side chosen from w_n^[i] = n_i . d_n^[i] exactly as in the reliability update (Eq. 13);
 splats seen nearly edge-on from the candidate (|w| <= w_min) carry no gain, as they would get no
 update. The MI is I_n = sum_j P(z_j) sum_i f_n^[i] T^[i,j] (Eq. 22): a one-channel image rendered
-with per-camera splat features, summed over pixels. All candidates of a step go through one batched
-render call (chunked to bound memory) at the scoring resolution.
+with per-camera splat features, summed over pixels. With P(z_j) = 1 all candidates of a step go
+through one call of the rasterizer's sided feature sums (render.sided_feature_sums: the gain is
+formed per visible splat inside it) at the scoring resolution; `information_gain` is its torch
+statement.
 
 Measurement prior P(z_j): 1 in simulation (the paper). For real sensors, `depth_noise` uses the
 axial noise model of a structured-light RGB-D camera (Nguyen et al. 2012),
@@ -19,8 +21,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from flightrecon.active.reliability import BACK, FRONT, observation_weights, observed_side, splat_normals
-from flightrecon.render import render
+from flightrecon.active.reliability import observation_weights, splat_normals
+from flightrecon.render import render, sided_feature_sums
+from flightrecon.render.feature_sums import side_values
 
 _SIGMA_MIN = 0.0012
 
@@ -35,14 +38,7 @@ def information_gain(reliability: torch.Tensor, w: torch.Tensor, w_min: float,
                      weighted: bool = True) -> torch.Tensor:
     """f [C,N] = -|w| log P(r_side) with P = sigmoid(log-odds); 0 where nearly edge-on (Eq. 21).
     `weighted=False` (an ablation) drops the |w| factor."""
-    side = observed_side(w, w_min)
-    neg_log_p = F.softplus(-reliability)  # -log sigmoid(l), [N,2]
-    scale = w.abs() if weighted else torch.ones_like(w)
-    gain = torch.zeros_like(w)
-    for s in (FRONT, BACK):
-        m = side == s
-        gain = torch.where(m, scale * neg_log_p[:, s][None].expand_as(w), gain)
-    return gain
+    return side_values(w, F.softplus(-reliability), w_min, weighted)  # softplus(-l) = -log sigmoid(l)
 
 
 def scoring_intrinsics(K: torch.Tensor, width: int, height: int, score_w: int, score_h: int) -> torch.Tensor:
@@ -57,14 +53,46 @@ def scoring_intrinsics(K: torch.Tensor, width: int, height: int, score_w: int, s
 def score_candidates(splats: dict[str, torch.Tensor], reliability: torch.Tensor, T_wc: torch.Tensor,
                      K: torch.Tensor, width: int, height: int, *, w_min: float, near: float, far: float,
                      prior: str = "one", chunk: int = 64, backend: str = "auto", weighted: bool = True,
-                     one_sided: bool = False) -> torch.Tensor:
+                     one_sided: bool = False, gain_floor: float = 0.0) -> torch.Tensor:
     """Expected MI [C] of candidate camera poses T_wc [C,4,4] rendered with K at width x height.
-    Ablations (see reliability.update_from_frame): `weighted=False`, `one_sided=True`."""
+    Ablations (see reliability.update_from_frame): `weighted=False`, `one_sided=True`.
+
+    With prior "one" the MI is the pixel sum of the sided gain (render.sided_feature_sums). With
+    `gain_floor` > 0 a first pass drops, per tile, the splats behind the last one whose gain reaches
+    the floor, which gives each candidate's MI within [lower, lower + bound]; the candidates whose
+    upper end reaches the best lower end are scored again exactly. Those keep their exact MI, the
+    others their lower bound, so the argmax is the exact argmax."""
     C = T_wc.shape[0]
     if C == 0 or splats["means"].shape[0] == 0:
         return torch.zeros(C, dtype=torch.float64)
+    if prior == "depth_noise":
+        return _score_with_depth_prior(splats, reliability, T_wc, K, width, height, w_min=w_min, near=near,
+                                       far=far, chunk=chunk, backend=backend, weighted=weighted,
+                                       one_sided=one_sided)
+    neg_log_p = F.softplus(-reliability)  # -log sigmoid(l): the gain of each side before |w|
+    sided = neg_log_p[:, :1].expand(-1, 2).contiguous() if one_sided else neg_log_p
+    viewmats = torch.linalg.inv(T_wc)
+    Ks = K[None].expand(C, 3, 3).contiguous()
+
+    def sums(idx: torch.Tensor, floor: float):
+        return sided_feature_sums(splats["means"], splats["quats"], splats["log_scales"],
+                                  splats["opacity_logits"], sided, viewmats[idx], Ks[idx], width, height, near,
+                                  far, w_min=w_min, weighted=weighted, floor=floor, backend=backend, chunk=chunk)
+
+    everyone = torch.arange(C)
+    first = sums(everyone, gain_floor)
+    scores = first.sums.clone()
+    if gain_floor > 0 and bool((first.bound > 0).any()):
+        contenders = torch.nonzero(first.sums + first.bound >= first.sums.max(), as_tuple=True)[0]
+        scores[contenders] = sums(contenders, 0.0).sums
+    return scores
+
+
+def _score_with_depth_prior(splats, reliability, T_wc, K, width, height, *, w_min, near, far, chunk, backend,
+                            weighted, one_sided) -> torch.Tensor:
+    """The MI weighted per pixel by the depth-noise prior: needs the rendered depth, so full renders."""
+    C = T_wc.shape[0]
     normals = splat_normals(splats["quats"])
-    outputs = ("features", "depth") if prior == "depth_noise" else ("features",)
     scores = []
     for start in range(0, C, chunk):
         poses = T_wc[start:start + chunk]
@@ -73,10 +101,7 @@ def score_candidates(splats: dict[str, torch.Tensor], reliability: torch.Tensor,
         n = poses.shape[0]
         out = render(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"], gain,
                      torch.linalg.inv(poses), K[None].expand(n, 3, 3).contiguous(), width, height,
-                     near=near, far=far, outputs=outputs, backend=backend)
-        img = out.features[..., 0]
-        if prior == "depth_noise":
-            img = img * depth_noise_prior(out.depth[..., 0])
+                     near=near, far=far, outputs=("features", "depth"), backend=backend)
+        img = out.features[..., 0] * depth_noise_prior(out.depth[..., 0])
         scores.append(img.double().sum(dim=(1, 2)))
     return torch.cat(scores)
-

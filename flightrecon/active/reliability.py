@@ -7,9 +7,9 @@ rendered at the frame's pose and the per-pixel reconstruction loss image
     L = L_C + lambda_rD L_D + lambda_rNr L_Nrend                                         (Eq. 15)
 
 is turned into per-pixel evidence v_j = -log(max(lambda_L L_j, loss_floor)). The per-splat sum
-S_i = sum_j v_j T^[i,j] is the gradient of sum_j v_j F_j with respect to a constant one-channel
-feature f_i = 1 (design.md's key identity), so one forward + backward of the rasterizer gives it
-for every splat. The update (Eq. 14) adds lambda_T |w_i| S_i to the side selected by
+S_i = sum_j v_j T^[i,j] is the gradient of sum_j v_j F_j with respect to the splats' features
+(render.rendered_view), so the backward of the loop's one render at the frame's pose gives it for
+every splat. The update (Eq. 14) adds lambda_T |w_i| S_i to the side selected by
 w_i = n_i . d_i (Eq. 12, 13): front if w_i > w_min, back if w_i < -w_min, no update otherwise.
 
 Bound: L_j -> 0 makes -log(lambda_L L_j) unbounded; L_j is clamped to `loss_floor` (default 1e-4,
@@ -26,13 +26,13 @@ depth) are added only where the observed depth is valid.
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 
 from flightrecon.config import ReliabilityConfig
 from flightrecon.geometry import pixel_rays
 from flightrecon.mapping.image_metrics import ssim_map
 from flightrecon.mapping.losses import normals_from_depth
-from flightrecon.render import render
+from flightrecon.render import RenderedView
+from flightrecon.render.feature_sums import view_cosines
 from flightrecon.render.projection import quat_to_rotmat
 
 FRONT, BACK, SKIP = 0, 1, -1
@@ -45,8 +45,7 @@ def splat_normals(quats: torch.Tensor) -> torch.Tensor:
 
 def observation_weights(means: torch.Tensor, normals: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
     """w [C,N] = n_i . (c - mu_i) / |c - mu_i| for camera centers [C,3] (Eq. 12)."""
-    d = F.normalize(centers[:, None, :] - means[None], dim=-1)
-    return (d * normals[None]).sum(-1)
+    return view_cosines(means, normals, centers)
 
 
 def observed_side(w: torch.Tensor, w_min: float) -> torch.Tensor:
@@ -86,21 +85,6 @@ def pixel_evidence(L: torch.Tensor, cfg: ReliabilityConfig) -> torch.Tensor:
     return -torch.log((cfg.lambda_L * L).clamp_min(cfg.loss_floor))
 
 
-def splat_pixel_sums(means: torch.Tensor, quats: torch.Tensor, log_scales: torch.Tensor,
-                     opacity_logits: torch.Tensor, viewmat: torch.Tensor, K: torch.Tensor,
-                     pixel_values: torch.Tensor, near: float, far: float, backend: str = "auto") -> torch.Tensor:
-    """S_i = sum_j v_j T^[i,j] for every splat [N], by one render + backward of a unit feature."""
-    N = means.shape[0]
-    H, W = pixel_values.shape
-    ones = torch.ones(N, 1, dtype=means.dtype, device=means.device, requires_grad=True)
-    with torch.enable_grad():
-        out = render(means.detach(), quats.detach(), log_scales.detach(), opacity_logits.detach(), ones,
-                     viewmat[None], K[None], W, H, near=near, far=far, outputs=("features",),
-                     backend=backend)
-        (grad,) = torch.autograd.grad((out.features[0, ..., 0] * pixel_values).sum(), ones)
-    return grad[:, 0]
-
-
 def reliability_update(reliability: torch.Tensor, w: torch.Tensor, sums: torch.Tensor,
                        cfg: ReliabilityConfig, weighted: bool = True) -> torch.Tensor:
     """New log-odds [N,2]: add lambda_T |w| S to the observed side (Eq. 14), clamp, skip edge-on.
@@ -115,26 +99,24 @@ def reliability_update(reliability: torch.Tensor, w: torch.Tensor, sums: torch.T
 
 
 @torch.no_grad()
-def update_from_frame(splats: dict[str, torch.Tensor], reliability: torch.Tensor, rgb_obs: torch.Tensor,
-                      depth_obs: torch.Tensor, T_wc: torch.Tensor, K: torch.Tensor, cfg: ReliabilityConfig,
-                      *, ssim_weight: float, near: float, far: float, backend: str = "auto",
-                      weighted: bool = True, one_sided: bool = False) -> tuple[torch.Tensor, dict]:
+def update_from_frame(view: RenderedView, splats: dict[str, torch.Tensor], reliability: torch.Tensor,
+                      rgb_obs: torch.Tensor, depth_obs: torch.Tensor, T_wc: torch.Tensor, K: torch.Tensor,
+                      cfg: ReliabilityConfig, *, ssim_weight: float, weighted: bool = True,
+                      one_sided: bool = False) -> tuple[torch.Tensor, dict]:
     """One reliability update after a frame was mapped; returns the new log-odds and diagnostics.
 
-    `splats` holds means, quats, log_scales, opacity_logits (the map's current parameters).
+    `view` is the map rendered at the frame's pose after mapping (color, depth, normal; the loop's
+    one render of that pose), whose backward gives the per-splat sums; `splats` holds the map's
+    current means and quats (for the observation weights).
     Ablations: `weighted=False` drops the |w| factor; `one_sided=True` puts every observation on
     the front log-odds (one reliability per splat, as 3D GauSS-MI without its directions).
     """
     H, W = depth_obs.shape[:2]
-    viewmat = torch.linalg.inv(T_wc)
-    out = render(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"],
-                 splats["colors"], viewmat[None], K[None], W, H, near=near, far=far,
-                 outputs=("features", "depth", "normal"), backend=backend)
+    out = view.output
     rays = torch.as_tensor(pixel_rays(W, H, K.cpu().numpy()), dtype=K.dtype, device=K.device)
     L = loss_image(out.features[0], out.depth[0], out.normal[0], rgb_obs, depth_obs, rays, cfg, ssim_weight)
     v = pixel_evidence(L, cfg)
-    sums = splat_pixel_sums(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"],
-                            viewmat, K, v, near, far, backend)
+    sums = view.splat_sums(v)
     normals = splat_normals(splats["quats"])
     w = observation_weights(splats["means"], normals, T_wc[None, :3, 3])[0]
     if one_sided:
@@ -142,4 +124,3 @@ def update_from_frame(splats: dict[str, torch.Tensor], reliability: torch.Tensor
     new = reliability_update(reliability, w, sums, cfg, weighted)
     touched = (sums != 0) & (w.abs() > cfg.w_min)
     return new, {"loss_mean": float(L.mean()), "updated": int(touched.sum())}
-

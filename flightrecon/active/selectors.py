@@ -19,6 +19,7 @@ from flightrecon.config import ScenarioConfig
 from flightrecon.errors import ConfigError
 from flightrecon.geometry import intrinsics
 from flightrecon.mapping.mapper import OnlineMapper
+from flightrecon.render import RenderedView
 
 SPLAT_KEYS = ("means", "quats", "log_scales", "opacity_logits", "colors")
 
@@ -32,6 +33,16 @@ class Observation:
     depth: np.ndarray  # (H, W) float32, 0 invalid
     K: np.ndarray
     T_wc: np.ndarray
+    view: RenderedView | None = None  # the map rendered at T_wc after mapping (the loop sets it)
+
+
+def capture_view(mapper: OnlineMapper, obs: Observation) -> RenderedView:
+    """The map rendered at the observation's pose after mapping: the loop's shared render, or a new one
+    when the observation came without it (a selector driven outside the loop)."""
+    if obs.view is None:
+        H, W = np.asarray(obs.depth).shape
+        obs.view = mapper.render_capture(obs.T_wc, obs.K, W, H)
+    return obs.view
 
 
 class Selector(Protocol):
@@ -47,9 +58,7 @@ class Selector(Protocol):
 
 def splats_of(mapper: OnlineMapper) -> dict[str, torch.Tensor]:
     """The map's current splat parameters (unit quaternions), as the renderer takes them."""
-    p = {k: mapper.map[k] for k in SPLAT_KEYS}
-    p["quats"] = torch.nn.functional.normalize(p["quats"], dim=-1)
-    return p
+    return mapper.splats()
 
 
 class GaussMI2D:
@@ -70,9 +79,9 @@ class GaussMI2D:
         dev = mapper.device
         t = lambda a: torch.as_tensor(np.asarray(a, np.float32), device=dev)  # noqa: E731
         new, diag = reliability.update_from_frame(
-            splats_of(mapper), mapper.map["reliability"], t(obs.rgb), t(obs.depth)[..., None], t(obs.T_wc),
-            t(obs.K), self.cfg.reliability, ssim_weight=self.cfg.mapper.ssim_weight, near=mapper.near,
-            far=mapper.far, backend=self.cfg.mapper.backend, weighted=self.weighted, one_sided=self.one_sided)
+            capture_view(mapper, obs), splats_of(mapper), mapper.map["reliability"], t(obs.rgb),
+            t(obs.depth)[..., None], t(obs.T_wc), t(obs.K), self.cfg.reliability,
+            ssim_weight=self.cfg.mapper.ssim_weight, weighted=self.weighted, one_sided=self.one_sided)
         mapper.map["reliability"][:] = new
         return diag
 
@@ -84,7 +93,7 @@ class GaussMI2D:
                                         w_min=self.cfg.reliability.w_min, near=mapper.near, far=mapper.far,
                                         prior="one" if s.measurement_prior == "one" else "depth_noise",
                                         backend=self.cfg.mapper.backend, weighted=self.weighted,
-                                        one_sided=self.one_sided)
+                                        one_sided=self.one_sided, gain_floor=s.gain_floor)
         return mi.cpu().numpy()
 
 

@@ -150,11 +150,11 @@ class EvaluationSet:
         return {**mean_metrics(per_view), "views": len(self.poses)}
 
     @staticmethod
-    def frame_quality(mapper, obs) -> tuple[float, float]:
-        """PSNR (dB) and depth L1 (cm) of the map at a just-captured frame (training-view quality)."""
-        H, W = obs.depth.shape
-        out = mapper.render_view(obs.T_wc, obs.K, W, H, outputs=("features", "depth"))
-        color = out.features[0].clamp(0, 1).cpu()
-        p = float(psnr(color, torch.from_numpy(np.asarray(obs.rgb, np.float32))))
-        d = 100.0 * float(depth_l1(out.depth[0].cpu(), torch.from_numpy(np.asarray(obs.depth, np.float32))[..., None]))
+    def frame_quality(rendered, rgb: np.ndarray, depth: np.ndarray) -> tuple[float, float]:
+        """PSNR (dB) and depth L1 (cm) of the map at a just-captured frame (training-view quality), from
+        the map's render at the frame's pose (`rendered`: a RenderOutput with features and depth)."""
+        color = rendered.features[0].detach().clamp(0, 1).cpu()
+        p = float(psnr(color, torch.from_numpy(np.asarray(rgb, np.float32))))
+        d = 100.0 * float(depth_l1(rendered.depth[0].detach().cpu(),
+                                   torch.from_numpy(np.asarray(depth, np.float32))[..., None]))
         return p, d

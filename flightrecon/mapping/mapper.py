@@ -24,7 +24,7 @@ from flightrecon.mapping.losses import FrameTarget, frame_target, training_loss
 from flightrecon.mapping.optimizer import SparseAdam
 from flightrecon.mapping.store import GaussianMap
 from flightrecon.mapping.voxel_hash import reject_near
-from flightrecon.render import render
+from flightrecon.render import RenderedView, render, render_view_with_sums
 from flightrecon.render.backend_cpu import candidate_rows
 
 log = logging.getLogger(__name__)
@@ -182,6 +182,23 @@ class OnlineMapper:
         return render(p["means"], p["quats"], p["log_scales"], p["opacity_logits"],
                       p["colors"], viewmats, Ks, W, H, near=self.near, far=self.far, outputs=outputs,
                       backend=self.cfg.backend)
+
+    def splats(self) -> dict[str, torch.Tensor]:
+        """The current splat parameters with unit quaternions, as renders of the whole map take them."""
+        p = {name: self.map[name] for name in ("means", "quats", "log_scales", "opacity_logits", "colors")}
+        p["quats"] = torch.nn.functional.normalize(p["quats"], dim=-1)
+        return p
+
+    def render_capture(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> RenderedView:
+        """The map at a captured pose after mapping (color, depth, normal), kept with the graph that
+        gives per-splat pixel sums: the one render of that pose the loop's consumers share."""
+        p = self.splats()
+        # inverted in float32 by torch, as the selectors' reliability update always did
+        viewmat = torch.linalg.inv(torch.as_tensor(np.asarray(T_wc, np.float32), device=self.device))
+        Kt = torch.as_tensor(np.asarray(K, np.float32), device=self.device)
+        return render_view_with_sums(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], p["colors"],
+                                     viewmat, Kt, width, height, near=self.near, far=self.far,
+                                     backend=self.cfg.backend)
 
     @torch.no_grad()
     def render_view(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int,

@@ -1,12 +1,14 @@
 """`map.ply`: the map in the 2DGS point-cloud layout, plus our own per-splat properties.
 
-Common 2DGS tools read: x y z, nx ny nz, f_dc_0..2 (SH degree-0 coefficients,
-(color - 0.5) / C0), opacity (logit), scale_0 scale_1 (log), rot_0..3 (quaternion w x y z).
-We write nx ny nz as the splat normal (2DGS writes zeros; tools ignore them). Extra properties:
-color_0..2 (the raw colors, because f_dc in float32 does not convert back bit-exactly),
-reliability_front, reliability_back, frame_created, n_observed. `for_3dgs=True` adds
-scale_2 = log(1e-6) so 3DGS viewers, which expect three scales, show the splats as flat disks.
-Written atomically; `load_map` gives back exactly what `save_map` was given.
+What common 2DGS tools read, and by default nothing else (64 bytes a splat): x y z, nx ny nz,
+f_dc_0..2 (SH degree-0 coefficients, (color - 0.5) / C0), opacity (logit), scale_0 scale_1 (log),
+rot_0..3 (quaternion w x y z). We write nx ny nz as the splat normal (2DGS writes zeros; tools
+ignore them). `extras=True` (output.ply_extras) adds our own per-splat properties: color_0..2
+(the raw colors, because f_dc in float32 does not convert back bit-exactly), reliability_front,
+reliability_back, frame_created, n_observed. `for_3dgs=True` adds scale_2 = log(1e-6) so 3DGS
+viewers, which expect three scales, show the splats as flat disks. Written atomically; `load_map`
+gives back exactly what `save_map` was given with extras, and without them the parameters with
+colors to float rounding (from f_dc) and zero reliability and bookkeeping.
 """
 
 from __future__ import annotations
@@ -37,8 +39,8 @@ _LAYOUT: list[tuple[str, str, int | None]] = (
 )
 
 
-def save_map(gmap: GaussianMap, path: str | Path, for_3dgs: bool = False) -> Path:
-    """Write the map as a binary little-endian PLY (atomic)."""
+def save_map(gmap: GaussianMap, path: str | Path, for_3dgs: bool = False, extras: bool = False) -> Path:
+    """Write the map as a binary little-endian PLY (atomic); `extras` adds our own columns."""
     cols = {name: gmap[name].detach().cpu().numpy() for name in list(PARAM_SHAPES) + list(META_SHAPES)}
     n = len(gmap)
     normals = quat_to_rotmat(cols["quats"].astype(np.float64))[..., :, 2] if n else np.zeros((0, 3))
@@ -51,9 +53,10 @@ def save_map(gmap: GaussianMap, path: str | Path, for_3dgs: bool = False) -> Pat
     if for_3dgs:
         fields += [("scale_2", np.full(n, FLAT_LOG_SCALE, np.float32))]
     fields += [(f"rot_{i}", cols["quats"][:, i]) for i in range(4)]
-    fields += [(f"color_{i}", cols["colors"][:, i]) for i in range(3)]
-    fields += [("reliability_front", cols["reliability"][:, 0]), ("reliability_back", cols["reliability"][:, 1])]
-    fields += [("frame_created", cols["frame_created"]), ("n_observed", cols["n_observed"])]
+    if extras:
+        fields += [(f"color_{i}", cols["colors"][:, i]) for i in range(3)]
+        fields += [("reliability_front", cols["reliability"][:, 0]), ("reliability_back", cols["reliability"][:, 1])]
+        fields += [("frame_created", cols["frame_created"]), ("n_observed", cols["n_observed"])]
     arr = np.empty(n, dtype=[(name, v.dtype.newbyteorder("<")) for name, v in fields])
     for name, v in fields:
         arr[name] = v

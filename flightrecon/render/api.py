@@ -63,11 +63,11 @@ def check_inputs(means, quats, log_scales, opacity_logits, features, viewmats, K
         raise FlightReconError(f"render: unknown outputs {bad} (choose from {', '.join(OUTPUTS)})")
     expect["features"] = (features, None)
     for name, (t, _) in expect.items():
-        if not _all_finite(t):
+        if not all_finite(t):
             raise DataError(f"render: {name} contains NaN or inf")
 
 
-def _all_finite(t: Tensor) -> bool:
+def all_finite(t: Tensor) -> bool:
     """No NaN or inf in `t`. A NaN or inf element makes the sum NaN or inf, so a finite sum settles it
     in one cheap reduction (isfinite().all() cost ~0.9 ms on 100k quaternions, per render call); a
     non-finite sum may be an overflow of finite values, so only then is every element checked."""
