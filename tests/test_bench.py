@@ -31,3 +31,28 @@ def test_bench_render_reports_every_workload_with_its_peer(tmp_path):
     # the peer ran on the same inputs in the same run: its ratio is reported
     assert all(r["speedup_vs_ref"] > 0 for r in rows if r["workload"].startswith("reference"))
     assert result["machine"]["cores"] >= 1
+
+
+def test_bench_run_then_score_on_its_map(tmp_path):
+    """bench run flies a whole (tiny) run into a kept folder; bench score restores its checkpoint and
+    times exact and culled 2D GauSS-MI scoring and the baselines' on the same library."""
+    run_dir = tmp_path / "run"
+    tiny = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
+            "mapper.k_new=6", "mapper.k_replay=2", "evaluation.views=2", "evaluation.every=0",
+            "budget.initial_views=2"]
+    sets = [a for s in tiny for a in ("--set", s)]
+    out = tmp_path / "run.json"
+    assert main(["bench", "run", "--scenario", "demo", "--frames", "4", "--run-dir", str(run_dir), *sets,
+                 "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert {r["stage"] for r in result["rows"]} >= {"map", "select_update", "plan", "score"}
+    assert result["splats"] > 0 and result["map_mb"] > 0 and result["wall_time_min"] > 0
+    assert (run_dir / "metrics.json").is_file()
+    out = tmp_path / "score.json"
+    assert main(["bench", "score", "--run", str(run_dir), "--sizes", "40x30", "--repeat", "1",
+                 "--out", str(out)]) == 0
+    score = json.loads(out.read_text())
+    row = score["rows"][0]
+    assert row["candidates"] > 20 and row["same_argmax"] and 1 <= row["rescored"] <= row["candidates"]
+    assert {b["method"] for b in score["baselines"]} == {"gaussmi", "fisherrf"}
+    assert all(b["ratio_to_ours"] > 0 for b in score["baselines"])
