@@ -1,6 +1,7 @@
 """Online optimization on MuJoCo RGB-D views of a procedural scene, with the C++ rasterizer."""
 
 import copy
+import dataclasses
 import logging
 
 import numpy as np
@@ -11,6 +12,7 @@ from flightrecon.config import MapperConfig, load_config
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.image_metrics import depth_l1
 from flightrecon.mapping.mapper import TRAIN_OUTPUTS, OnlineMapper, seed_share
+from flightrecon.mapping.voxel_hash import voxel_keys
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world
@@ -85,6 +87,53 @@ def test_pruning_drops_transparent_splats_with_their_state(views):
     opacity = torch.sigmoid(mapper.map["opacity_logits"])
     assert torch.all(opacity >= 0.69)
     assert mapper.map["adam_m.means"].shape[0] == len(mapper.map)
+
+
+def test_pruning_keeps_every_column_of_the_kept_splats_in_step(views):
+    """Each kept splat's row moves whole: parameters, moments, reliability, bookkeeping and a column a
+    selector registered, identified through a tag column written before the prune."""
+    K, vs = views
+    mapper = _mapper(k_new=6, k_replay=0)
+    mapper.add_frame(vs[0][0], vs[0][1], K, vs[0][2])
+    g = mapper.map
+    g.add_column("tag", (), torch.int64)
+    g["tag"][:] = torch.arange(len(g))
+    g["reliability"][:] = torch.randn(len(g), 2, generator=torch.Generator().manual_seed(0))
+    before = {name: g[name].clone() for name in g._cols}
+    opacity = torch.sigmoid(g["opacity_logits"])
+    threshold = float(torch.quantile(opacity, 0.3))
+    mapper.cfg = dataclasses.replace(mapper.cfg, prune_opacity=threshold)
+    mapper._prune()
+    kept = before["tag"][opacity >= threshold]
+    assert 0 < len(g) < len(before["tag"]) and torch.equal(g["tag"], kept)
+    for name, col in before.items():
+        assert torch.equal(g[name], col[kept]), name
+    assert mapper.pruned == len(before["tag"]) - len(g)
+
+
+def test_pruned_voxels_are_not_reseeded(views):
+    K, vs = views
+    mapper = _mapper(k_new=4, k_replay=0)
+    rgb, depth, T = vs[0]
+    mapper.add_frame(rgb, depth, K, T)
+    g = mapper.map
+    # make every splat in one half of the frame transparent, then prune them
+    side = g["means"][:, 1] > float(g["means"][:, 1].median())
+    g["opacity_logits"][side] = -10.0
+    mapper.cfg = dataclasses.replace(mapper.cfg, prune_opacity=0.01)
+    mapper._prune()
+    assert mapper.tombstones.size > 0 and len(g) == int((~side).sum())
+    forgetful = copy.deepcopy(mapper)
+    forgetful.tombstones = np.zeros(0, np.int64)
+
+    def seeded_in_tombstones(m: OnlineMapper) -> int:
+        m.cfg = dataclasses.replace(m.cfg, k_new=0)  # the new splats stay where they were seeded
+        m.add_frame(rgb, depth, K, T)  # the same view again
+        new = m.map["means"][m.map["frame_created"] == 1].numpy()
+        return int(np.isin(voxel_keys(new, m.cfg.gamma), mapper.tombstones).sum())
+
+    assert seeded_in_tombstones(forgetful) > 100  # without them the pruned half is seeded afresh
+    assert seeded_in_tombstones(mapper) == 0
 
 
 def test_frame_without_valid_depth_is_a_warned_no_op(views, caplog):

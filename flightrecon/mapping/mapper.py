@@ -3,8 +3,14 @@
 One `add_frame` is the paper's per-timestep update (Section III-B): gamma-rejected initialization
 from the frame, K_new Adam iterations on it, then K_replay iterations each on a frame drawn at random
 (seeded) from the earlier ones, uniformly or favouring those trained longest ago
-(`MapperConfig.replay`). With `prune_opacity > 0`, splats whose opacity fell below it are dropped
-after the update (off by default, as in the paper: a removed splat loses its reliability).
+(`MapperConfig.replay`).
+
+Pruning (`prune_opacity` > 0) drops the splats whose opacity fell below it after the update,
+every column with them (GaussianMap.keep: optimizer moments, reliability, the selectors'
+columns). Their gamma voxels stay taken for the rejection of new splats ("tombstones"): the
+optimizer found nothing to draw there, so a later frame does not seed a fresh splat in the place
+of a pruned one, which would start with no evidence (and no training) where the map had both and
+would make the prune-and-reseed cycle undo the pruning.
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from flightrecon.mapping.frames import StoredFrame, compact_frame, expand_frame
 from flightrecon.mapping.losses import FrameTarget, frame_target, training_loss
 from flightrecon.mapping.optimizer import SparseAdam
 from flightrecon.mapping.store import GaussianMap
-from flightrecon.mapping.voxel_hash import reject_near
+from flightrecon.mapping.voxel_hash import reject_near, voxel_keys
 from flightrecon.render import RenderedView, render, render_view_with_sums
 from flightrecon.render.backend_cpu import candidate_rows
 
@@ -80,6 +86,8 @@ class OnlineMapper:
         self._clock = 0  # optimization calls so far (a frame's K_new counts as one)
         self.rng = np.random.default_rng(seed)
         self._rays: dict[tuple, torch.Tensor] = {}
+        self.tombstones = np.zeros(0, np.int64)  # sorted gamma-voxel keys of pruned splats
+        self.pruned = 0
 
     # -- one timestep ---------------------------------------------------------------------------
     def add_frame(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> FrameStats:
@@ -102,8 +110,19 @@ class OnlineMapper:
             self.last_trained[pick] = self._clock
             self._optimize(self.frames[pick], 1)
         if self.cfg.prune_opacity > 0:
-            self.map.keep(torch.sigmoid(self.map["opacity_logits"]) >= self.cfg.prune_opacity)
+            self._prune()
         return FrameStats(index, added, len(self.map))
+
+    def _prune(self) -> None:
+        """Drop the splats below `prune_opacity` (all columns) and keep their voxels taken."""
+        drop = torch.sigmoid(self.map["opacity_logits"]) < self.cfg.prune_opacity
+        count = int(drop.sum())
+        if count == 0:
+            return
+        keys = voxel_keys(self.map["means"][drop].detach().cpu().numpy(), self.cfg.gamma)
+        self.tombstones = np.union1d(self.tombstones, keys)
+        self.map.keep(~drop)
+        self.pruned += count
 
     def _replay_pick(self, index: int) -> int:
         """A frame before `index` to replay (frame 0 when it is the only one), drawn per `cfg.replay`.
@@ -124,9 +143,9 @@ class OnlineMapper:
         cand = splat_init.frame_candidates(rgb, depth, K, T_wc, near=self.near, far=self.far,
                                            subsample=share, rng=self.rng,
                                            edges=self.cfg.init_edge_normals)
-        if len(self.map) > 0:  # the first frame is inserted whole (2DGS-SLAM)
+        if index > 0:  # the first frame is inserted whole (2DGS-SLAM)
             keep = reject_near(cand["points"], self.map["means"].cpu().numpy(), self.cfg.gamma,
-                               self.cfg.one_new_per_voxel)
+                               self.cfg.one_new_per_voxel, blocked=self.tombstones)
             cand = {k: v[keep] for k, v in cand.items()}
         if len(cand["points"]) == 0:
             return 0

@@ -31,13 +31,17 @@ def occupied(keys: np.ndarray, existing_sorted: np.ndarray) -> np.ndarray:
 
 
 def reject_near(new_points: np.ndarray, existing_points: np.ndarray, voxel: float,
-                one_per_voxel: bool = False) -> np.ndarray:
-    """Indices (ascending) of `new_points` whose voxel holds none of `existing_points`.
+                one_per_voxel: bool = False, blocked: np.ndarray | None = None) -> np.ndarray:
+    """Indices (ascending) of `new_points` whose voxel holds none of `existing_points` and is not
+    among the sorted keys `blocked`.
 
     With `one_per_voxel`, of new points sharing a free voxel only the first (in order) is kept.
     """
     keys = voxel_keys(new_points, voxel)
-    cand = np.nonzero(~occupied(keys, np.unique(voxel_keys(existing_points, voxel))))[0]
+    taken = np.unique(voxel_keys(existing_points, voxel))
+    if blocked is not None and blocked.size:
+        taken = np.union1d(taken, blocked)
+    cand = np.nonzero(~occupied(keys, taken))[0]
     if not one_per_voxel:
         return cand
     _, first = np.unique(keys[cand], return_index=True)
