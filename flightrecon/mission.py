@@ -341,7 +341,7 @@ class Mission:
         rec = self.state.records
         metrics = {
             "scenario": self.cfg.name, "method": self.cfg.selector.method, "seed": self.cfg.seed,
-            "frames": len(rec), "splats": len(self.mapper.map),
+            "frames": len(rec), "splats": len(self.mapper.map), "splats_pruned": self.mapper.pruned,
             "map_mb": (self.run_dir / "map.ply").stat().st_size / 1e6,
             "flight_distance_m": self.state.flight_distance, "sim_time_s": self.flight.time,
             "wall_time_s": self.state.wall_time, "contacts": len(self.flight.log.events),

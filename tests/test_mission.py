@@ -72,7 +72,8 @@ def _fly(args: list[str], **kw) -> subprocess.Popen:
 
 @pytest.mark.slow
 def test_kill_and_resume_equals_uninterrupted(tmp_path):
-    extra = ["budget.frames=5", "budget.initial_views=2", "evaluation.every=0", "output.ply_extras=true"]
+    extra = ["budget.frames=5", "budget.initial_views=2", "evaluation.every=0", "output.ply_extras=true",
+             "mapper.prune_opacity=0.5"]  # prunes every frame: the resumed run must prune and reseed alike
     sets = [a for s in TINY + extra for a in ("--set", s)]
     whole, broken = tmp_path / "whole", tmp_path / "broken"
     p = _fly(["demo", "--quiet", "--out", str(whole), *sets])
@@ -96,6 +97,7 @@ def test_kill_and_resume_equals_uninterrupted(tmp_path):
         assert np.array_equal(a[name].numpy(), b[name].numpy()), name
     ma, mb = (json.loads((d / "metrics.json").read_text()) for d in (whole, broken))
     assert ma["eval"] == mb["eval"] and ma["flight_distance_m"] == mb["flight_distance_m"]
+    assert ma["splats_pruned"] == mb["splats_pruned"] > 0
     keys = ("frame", "sim_time", "n_splats", "n_feasible", "chosen_score", "flight_distance")
     assert [[r[k] for k in keys] for r in _rows(whole)] == [[r[k] for k in keys] for r in _rows(broken)]
 
