@@ -1,7 +1,7 @@
-"""2D GauSS-MI (the paper's Section IV-B, Eqs. 17-22): expected mutual information of candidate views.
+"""2D GauSS-MI (the paper's Section IV-B, Eqs. 16-22; docs/equations.md): expected mutual information of candidate views.
 
 For candidate n, each splat's information gain is f_n^[i] = -|w_n^[i]| log P(r_obs^[i]) (Eq. 21),
-with the side chosen from w_n^[i] = n_i . d_n^[i] exactly as in the reliability update (Eq. 13);
+with the side chosen from w_n^[i] = n_i . d_n^[i] exactly as in the reliability update (Eq. 12);
 splats seen nearly edge-on from the candidate (|w| <= w_min) carry no gain, as they would get no
 update. The MI is I_n = sum_j P(z_j) sum_i f_n^[i] T^[i,j] (Eq. 22): a one-channel image rendered
 with per-camera splat features, summed over pixels. With P(z_j) = 1 all candidates of a step go

@@ -1,16 +1,16 @@
-"""Two-sided splat reliability (the paper's Section IV-A, Eqs. 7-16).
+"""Two-sided splat reliability (the paper's Section IV-A, Eqs. 6-15; docs/equations.md).
 
 Each splat keeps two log-odds, front (along its normal, the side first observed, since
 initialization orients normals toward the camera) and back. After a frame is mapped, the map is
 rendered at the frame's pose and the per-pixel reconstruction loss image
 
-    L = L_C + lambda_rD L_D + lambda_rNr L_Nrend                                         (Eq. 15)
+    L = L_C + lambda_rD L_D + lambda_rNr L_Nrend                                         (Eq. 14)
 
 is turned into per-pixel evidence v_j = -log(max(lambda_L L_j, loss_floor)). The per-splat sum
 S_i = sum_j v_j T^[i,j] is the gradient of sum_j v_j F_j with respect to the splats' features
 (render.rendered_view), so the backward of the loop's one render at the frame's pose gives it for
-every splat. The update (Eq. 14) adds lambda_T |w_i| S_i to the side selected by
-w_i = n_i . d_i (Eq. 12, 13): front if w_i > w_min, back if w_i < -w_min, no update otherwise.
+every splat. The update (Eq. 13) adds lambda_T |w_i| S_i to the side selected by
+w_i = n_i . d_i (Eq. 11, 12): front if w_i > w_min, back if w_i < -w_min, no update otherwise.
 
 Bound: L_j -> 0 makes -log(lambda_L L_j) unbounded; L_j is clamped to `loss_floor` (default 1e-4,
 GauSS-MI's value), so one pixel adds at most -log(1e-4) = 9.21 nats times lambda_T |w| T. The
@@ -44,12 +44,12 @@ def splat_normals(quats: torch.Tensor) -> torch.Tensor:
 
 
 def observation_weights(means: torch.Tensor, normals: torch.Tensor, centers: torch.Tensor) -> torch.Tensor:
-    """w [C,N] = n_i . (c - mu_i) / |c - mu_i| for camera centers [C,3] (Eq. 12)."""
+    """w [C,N] = n_i . (c - mu_i) / |c - mu_i| for camera centers [C,3] (Eq. 11)."""
     return view_cosines(means, normals, centers)
 
 
 def observed_side(w: torch.Tensor, w_min: float) -> torch.Tensor:
-    """FRONT (0) where w > w_min, BACK (1) where w < -w_min, SKIP (-1) when nearly edge-on (Eq. 13)."""
+    """FRONT (0) where w > w_min, BACK (1) where w < -w_min, SKIP (-1) when nearly edge-on (Eq. 12)."""
     side = torch.full_like(w, SKIP, dtype=torch.long)
     side[w > w_min] = FRONT
     side[w < -w_min] = BACK
@@ -59,7 +59,7 @@ def observed_side(w: torch.Tensor, w_min: float) -> torch.Tensor:
 def loss_image(color: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor, rgb_obs: torch.Tensor,
                depth_obs: torch.Tensor, rays: torch.Tensor, cfg: ReliabilityConfig,
                ssim_weight: float) -> torch.Tensor:
-    """Per-pixel reconstruction loss L [H,W] (Eq. 15) of one rendered view against its observation.
+    """Per-pixel reconstruction loss L [H,W] (Eq. 14) of one rendered view against its observation.
 
     color [H,W,3], depth [H,W,1], normal [H,W,3] (camera frame), rgb_obs [H,W,3], depth_obs [H,W,1]
     (0 = invalid), rays [H,W,3] pixel directions with z = 1.
@@ -81,13 +81,13 @@ def loss_image(color: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor, r
 
 
 def pixel_evidence(L: torch.Tensor, cfg: ReliabilityConfig) -> torch.Tensor:
-    """v_j = -log(max(lambda_L L_j, loss_floor)) (the log of Eq. 11's inverse sensing model)."""
+    """v_j = -log(max(lambda_L L_j, loss_floor)) (the log of Eq. 8's inverse sensing model)."""
     return -torch.log((cfg.lambda_L * L).clamp_min(cfg.loss_floor))
 
 
 def reliability_update(reliability: torch.Tensor, w: torch.Tensor, sums: torch.Tensor,
                        cfg: ReliabilityConfig, weighted: bool = True) -> torch.Tensor:
-    """New log-odds [N,2]: add lambda_T |w| S to the observed side (Eq. 14), clamp, skip edge-on.
+    """New log-odds [N,2]: add lambda_T |w| S to the observed side (Eq. 13), clamp, skip edge-on.
     `weighted=False` (an ablation) adds lambda_T S without the |w| factor."""
     side = observed_side(w, cfg.w_min)
     delta = cfg.lambda_T * (w.abs() if weighted else 1.0) * sums

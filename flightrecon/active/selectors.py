@@ -62,7 +62,7 @@ def splats_of(mapper: OnlineMapper) -> dict[str, torch.Tensor]:
 
 
 class GaussMI2D:
-    """The paper's method: two-sided reliability (Eq. 14) and 2D GauSS-MI (Eq. 22)."""
+    """The paper's method: two-sided reliability (Eq. 13) and 2D GauSS-MI (Eq. 22)."""
 
     name = "gaussmi2d"
     weighted = True  # ablation switches, set by the variants in active.baselines

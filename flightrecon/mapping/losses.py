@@ -1,4 +1,4 @@
-"""The online 2DGS training loss (the paper's Eq. 6, masked as in 2DGS-SLAM).
+"""The online 2DGS training loss (the paper's Eq. 5, masked as in 2DGS-SLAM).
 
 L = (1 - w) L1(C) + w (1 - SSIM(C))                       over all pixels
   + lambda_D  mean |D - D_obs|                            over M
