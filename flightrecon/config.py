@@ -239,6 +239,9 @@ class OutputConfig:
     run_root: str = _f("runs")
     record: bool = _f(True, doc="write recording.rrd")
     checkpoint: bool = _f(True)
+    diagnose: bool = _f(False, doc="write diagnosis.csv: per step the chosen view's 2D GauSS-MI split by kind of splat "
+                        "(active/diagnosis.py), the move, the share of the room's visible surface seen so far and "
+                        "the new frame's overlap with earlier ones (evaluation/coverage.py)")
     ply_extras: bool = _f(False, doc="map.ply (and snapshots) also hold our own per-splat columns: raw colors, "
                           "two-sided reliability, frame created, times observed; off: the 2DGS columns alone")
     record_map_every: int = _f(5, 1, None, doc="log the splat map every k frames (and at the last frame)")

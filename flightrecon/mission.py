@@ -28,14 +28,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from flightrecon.active.selectors import Observation, make_selector
+from flightrecon.active.diagnosis import mi_split, move_kind
+from flightrecon.active.selectors import GaussMI2D, Observation, make_selector
 from flightrecon.config import ScenarioConfig, load_config, to_toml
 from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import write_trajectory_csv
 from flightrecon.errors import DataError, FlightReconError
+from flightrecon.evaluation.coverage import SurfaceCoverage
 from flightrecon.evaluation.run_eval import SNAPSHOTS
 from flightrecon.evaluation.views import EvaluationSet
+from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
 from flightrecon.fileio import atomic_path, write_json, write_text
 from flightrecon.geometry import camera_pose_from_body, make_pose, rot_z
 from flightrecon.mapping.mapper import OnlineMapper
@@ -57,6 +61,7 @@ log = logging.getLogger(__name__)
 CHECKPOINT = "checkpoint.pkl"
 RELIABLE_LOGODDS = math.log(0.7 / 0.3)  # P(r) > 0.7
 RELIABLE_EMA, RELIABLE_STOP = 0.95, 0.75
+DIAGNOSIS_SURFACE_SAMPLES = 200_000  # ground-truth surface samples of output.diagnose's coverage
 FRAME_COLUMNS = ("frame", "sim_time", "t_capture", "t_map", "t_select_update", "t_plan", "t_score",
                  "t_fly_sim", "n_splats", "n_candidates", "n_feasible", "n_ompl", "chosen_score",
                  "flight_time", "flight_distance", "recovery", "frame_psnr", "frame_depth_l1_cm",
@@ -75,6 +80,8 @@ class MissionState:
     wall_time: float = 0.0
     reliable_ema: float = 0.0  # GauSS-MI's stopping statistic (see `_update_stopping`)
     told_no_room: bool = False  # the user was told the drone cannot leave its take-off point
+    coverage: SurfaceCoverage | None = None  # output.diagnose: what the captured depth has reached
+    diagnosis: list = field(default_factory=list)  # output.diagnose: one row per frame
 
 
 def flight_region(scene, cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -108,6 +115,9 @@ class Mission:
         self.selector = make_selector(cfg)
         self.evaluation = EvaluationSet.for_mission(self.camera, self.start, self.truth, self.workspace, cfg)
         self.state = MissionState()
+        if cfg.output.diagnose:
+            free = room_free_space(self.scene, self.start)
+            self.state.coverage = SurfaceCoverage(visible_surface(self.scene, free, DIAGNOSIS_SURFACE_SAMPLES).points)
         self.live_viewer = False  # `fly --rerun`: stream the recording to a viewer as well
         self.recorder = NullRecorder()
 
@@ -190,6 +200,9 @@ class Mission:
             row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(obs.view.output, rgb, depth)
         self.recorder.capture(obs)
         self.planner.integrate(depth, self.K, T_wc, body_position=body.position)
+        if self.state.coverage is not None:
+            seen, overlap = self.state.coverage.add_frame(depth, self.K, T_wc)
+            self.state.diagnosis.append({"frame": self.state.frame, "surface_seen": seen, "overlap": overlap})
 
         every = cfg.evaluation.every
         if last or (every > 0 and self.state.frame % every == 0):
@@ -246,6 +259,8 @@ class Mission:
                 scores = np.asarray(self.selector.score(self.mapper, self.candidate_poses(feasible), lengths), float)
             best = int(np.argmax(scores))
             chosen, row["chosen_score"] = feasible[best], float(scores[best])
+            if self.state.coverage is not None:
+                self._diagnose_choice(chosen, scores)
         row["t_score"] = time.perf_counter() - t
         row["recovery"] = ""
         if chosen is None:
@@ -274,6 +289,21 @@ class Mission:
         row["contacts"] = len(self.flight.log.events)
         for ev in flown.events:
             self._event(f"frame {self.state.frame}: contact {ev.describe()}")
+
+    def _diagnose_choice(self, chosen: CandidateResult, scores: np.ndarray) -> None:
+        """output.diagnose: the move, the best score over the median, and (for 2D GauSS-MI and its
+        ablations) the chosen view's MI split by kind of splat."""
+        s = self.flight.state
+        diag = self.state.diagnosis[-1]
+        diag["move"] = move_kind(s.position, float(s.yaw), chosen.position, float(chosen.yaw))
+        diag["best_over_median"] = float(scores.max() / np.median(scores)) if np.median(scores) > 0 else math.nan
+        if isinstance(self.selector, GaussMI2D):
+            c = self.cfg
+            pose = torch.as_tensor(self.candidate_poses([chosen])[0], dtype=torch.float32)
+            diag.update(mi_split(self.mapper.splats(), self.mapper.map["reliability"], pose,
+                                 self.selector.K_score, c.selector.scoring_width, c.selector.scoring_height,
+                                 w_min=c.reliability.w_min, clamp=c.reliability.logodds_clamp,
+                                 near=self.mapper.near, far=self.mapper.far, backend=c.mapper.backend))
 
     def _recover(self, start: FlatState, results: list[CandidateResult], row: dict) -> CandidateResult | None:
         """No feasible candidate: turn in place, else back-track to an earlier viewpoint, else hover."""
@@ -333,6 +363,14 @@ class Mission:
             writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
         write_text(self.run_dir / "frames.csv", buf.getvalue())
         write_text(self.run_dir / "events.log", "".join(e + "\n" for e in self.state.events))
+        if self.state.diagnosis:
+            names = list(dict.fromkeys(k for r in self.state.diagnosis for k in r))
+            buf = io.StringIO()
+            writer = csv.DictWriter(buf, fieldnames=names, restval="")
+            writer.writeheader()
+            for r in self.state.diagnosis:
+                writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+            write_text(self.run_dir / "diagnosis.csv", buf.getvalue())
 
     def _finish(self) -> dict:
         save_map(self.mapper.map, self.run_dir / "map.ply", extras=self.cfg.output.ply_extras)

@@ -29,6 +29,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rerun", action="store_true",
                    help="stream the flight live to a rerun viewer (web viewer address printed when headless)")
     p.add_argument("--no-record", action="store_true", help="write no recording.rrd (output.record=false)")
+    p.add_argument("--diagnose", action="store_true",
+                   help="write diagnosis.csv: the chosen view's MI by kind of splat, the move, the surface seen so "
+                        "far and each frame's overlap with earlier ones (output.diagnose=true)")
     p.add_argument("--export-3dgs", action="store_true",
                    help="also write map_3dgs.ply with scale_2 for 3DGS viewers (as `map --export-3dgs`)")
     p.set_defaults(func=run)
@@ -43,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_active(None, Path(args.resume), not args.quiet, args)
     if args.scenario is None:
         raise FlightReconError("fly needs a SCENARIO (or --resume RUN_DIR)")
-    cfg = load_config(args.scenario, args.overrides + (["output.record=false"] if args.no_record else []))
+    flags = (["output.record=false"] if args.no_record else []) + (["output.diagnose=true"] if args.diagnose else [])
+    cfg = load_config(args.scenario, args.overrides + flags)
     progress = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     if args.survey:
         return _run_survey(cfg, Path(args.out) if args.out else default_out_dir(cfg, "survey"), progress)
