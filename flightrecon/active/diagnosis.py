@@ -60,8 +60,8 @@ def edge_pixels(depth: torch.Tensor) -> torch.Tensor:
 def mi_split(splats: dict[str, torch.Tensor], reliability: torch.Tensor, T_wc: torch.Tensor, K: torch.Tensor,
              width: int, height: int, *, w_min: float, clamp: float, near: float, far: float,
              backend: str = "auto") -> dict[str, float]:
-    """The MI of one candidate (T_wc [4,4]) by kind (`mi_<kind>`), in total (`mi`), and the share of
-    it on occlusion-edge pixels (`mi_edge_share`)."""
+    """The MI of one candidate (T_wc [4,4]) by kind (`mi_<kind>`), in total (`mi`), the share of it
+    on occlusion-edge pixels (`mi_edge_share`) and those pixels' share of the image."""
     normals = splat_normals(splats["quats"])
     w = observation_weights(splats["means"], normals, T_wc[None, :3, 3])[0]
     kind = splat_kinds(w, reliability, w_min, clamp)
@@ -77,6 +77,7 @@ def mi_split(splats: dict[str, torch.Tensor], reliability: torch.Tensor, T_wc: t
     row = {f"mi_{k}": float(img[..., i].sum()) for i, k in enumerate(KINDS)}
     row["mi"] = total
     row["mi_edge_share"] = float(img[edge].sum()) / total if total > 0 else math.nan
+    row["edge_pixel_share"] = float(edge.double().mean())
     return row
 
 
