@@ -34,6 +34,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--holdout", type=int, default=5)
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
     p.add_argument("--quality", action="store_true", help="also render and score every view after training")
+    p.add_argument("--scenario", default=None,
+                   help="take the mapper settings of this scenario (e.g. default, the CPU default); "
+                        "default: the config defaults (the paper's)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="config override, e.g. mapper.backend=reference")
 
@@ -42,7 +45,7 @@ def run(args: argparse.Namespace) -> dict:
     if not args.dataset:
         raise SystemExit("bench map: give --dataset DIR (record one with `flightrecon fly office0 --survey`)")
     torch.set_num_threads(args.threads)
-    cfg = load_config(None, args.overrides)
+    cfg = load_config(args.scenario, args.overrides)
     rows = []
     for path in args.dataset:
         ds = load_dataset(path)
