@@ -29,6 +29,8 @@ from flightrecon.mission import Mission
 from flightrecon.render import sided_feature_sums
 
 
+NOT_IN_ALL = "needs --run"
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", help="run folder with a checkpoint (e.g. from `bench run` or `fly`)")
     p.add_argument("--sizes", default="", help="scoring resolutions WxH, comma separated (default: the run's "

@@ -40,6 +40,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.name == "all":
         for name in names:
             mod, parser = _parser(name)
+            if getattr(mod, "NOT_IN_ALL", None):  # needs an input, or is a whole flight
+                print(f"bench {name}: skipped by `bench all` ({mod.NOT_IN_ALL}); run `flightrecon bench {name}`")
+                continue
             mod.run(parser.parse_args([]))
         return 0
     if args.name not in names:
