@@ -356,21 +356,11 @@ class Mission:
 
     # ------------------------------------------------------------------ outputs
     def _save_frame_outputs(self) -> None:
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=FRAME_COLUMNS, restval="", extrasaction="ignore")
-        writer.writeheader()
-        for r in self.state.records:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-        write_text(self.run_dir / "frames.csv", buf.getvalue())
+        write_text(self.run_dir / "frames.csv", _csv_text(self.state.records, FRAME_COLUMNS))
         write_text(self.run_dir / "events.log", "".join(e + "\n" for e in self.state.events))
         if self.state.diagnosis:
             names = list(dict.fromkeys(k for r in self.state.diagnosis for k in r))
-            buf = io.StringIO()
-            writer = csv.DictWriter(buf, fieldnames=names, restval="")
-            writer.writeheader()
-            for r in self.state.diagnosis:
-                writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-            write_text(self.run_dir / "diagnosis.csv", buf.getvalue())
+            write_text(self.run_dir / "diagnosis.csv", _csv_text(self.state.diagnosis, names))
 
     def _finish(self) -> dict:
         save_map(self.mapper.map, self.run_dir / "map.ply", extras=self.cfg.output.ply_extras)
@@ -432,6 +422,16 @@ class _progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+def _csv_text(rows: list[dict], columns) -> str:
+    """Rows as CSV with the given columns (others ignored, missing ones empty), floats to 6 digits."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(columns), restval="", extrasaction="ignore")
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+    return buf.getvalue()
 
 
 def _fmt(v) -> str:

@@ -17,6 +17,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from flightrecon.active.gaussmi2d import information_gain
 from flightrecon.active.reliability import BACK, FRONT, observation_weights, observed_side, splat_normals
 from flightrecon.render import render
 
@@ -65,8 +66,7 @@ def mi_split(splats: dict[str, torch.Tensor], reliability: torch.Tensor, T_wc: t
     normals = splat_normals(splats["quats"])
     w = observation_weights(splats["means"], normals, T_wc[None, :3, 3])[0]
     kind = splat_kinds(w, reliability, w_min, clamp)
-    side = observed_side(w, w_min).clamp_min(0)
-    gain = w.abs() * F.softplus(-reliability[torch.arange(len(w)), side])  # Eq. 21
+    gain = information_gain(reliability, w[None], w_min)[0]  # Eq. 21
     onehot = F.one_hot(kind.clamp_min(0), len(KINDS)).to(gain.dtype) * (kind >= 0)[:, None]
     out = render(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"],
                  gain[:, None] * onehot, torch.linalg.inv(T_wc)[None], K[None], width, height, near=near, far=far,

@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 
 from flightrecon.active.reliability import observation_weights, splat_normals
-from flightrecon.render import render, sided_feature_sums
+from flightrecon.render import FeatureSums, render, sided_feature_sums
 from flightrecon.render.feature_sums import side_values
 
 _SIGMA_MIN = 0.0012
@@ -83,9 +83,14 @@ def score_candidates(splats: dict[str, torch.Tensor], reliability: torch.Tensor,
     first = sums(everyone, gain_floor)
     scores = first.sums.clone()
     if gain_floor > 0 and bool((first.bound > 0).any()):
-        contenders = torch.nonzero(first.sums + first.bound >= first.sums.max(), as_tuple=True)[0]
+        contenders = can_still_win(first)
         scores[contenders] = sums(contenders, 0.0).sums
     return scores
+
+
+def can_still_win(first: FeatureSums) -> torch.Tensor:
+    """Indices of the candidates whose upper bound reaches the best lower bound of a cut pass."""
+    return torch.nonzero(first.sums + first.bound >= first.sums.max(), as_tuple=True)[0]
 
 
 def _score_with_depth_prior(splats, reliability, T_wc, K, width, height, *, w_min, near, far, chunk, backend,

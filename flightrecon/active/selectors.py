@@ -21,8 +21,6 @@ from flightrecon.geometry import intrinsics
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.render import RenderedView
 
-SPLAT_KEYS = ("means", "quats", "log_scales", "opacity_logits", "colors")
-
 
 @dataclass
 class Observation:

@@ -41,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repeat", type=int, default=3)
 
 
-def _library_poses(mission: Mission) -> np.ndarray:
+def library_poses(mission: Mission) -> np.ndarray:
     """Camera poses [C,4,4] of the candidate library around the drone's final state."""
     s = mission.flight.state
     start = FlatState(s.position, np.zeros(3), np.zeros(3), float(s.yaw), 0.0)
@@ -51,14 +51,14 @@ def _library_poses(mission: Mission) -> np.ndarray:
 def _selector_time(mission: Mission, repeat: int) -> dict:
     """The configured selector's own score() of the final library, per candidate: its scoring
     resolution and all it recomputes per selection (e.g. FisherRF's H_train) included."""
-    poses = _library_poses(mission)
+    poses = library_poses(mission)
     t = time_call(lambda: mission.selector.score(mission.mapper, poses), repeat=repeat, warmup=0)["median_s"]
     return {"method": mission.cfg.selector.method, "candidates": len(poses), "ms_per_cand": 1e3 * t / len(poses)}
 
 
 def _score_times(mission: Mission, width: int, height: int, repeat: int) -> dict:
     """Median seconds to score the library poses (MI) and to plain-render them, at width x height."""
-    poses = torch.as_tensor(_library_poses(mission), dtype=torch.float32)
+    poses = torch.as_tensor(library_poses(mission), dtype=torch.float32)
     c = mission.cfg
     K = torch.as_tensor(mission.K, dtype=torch.float32)
     Ks = gaussmi2d.scoring_intrinsics(K, c.camera.width, c.camera.height, width, height)

@@ -29,6 +29,7 @@ from flightrecon.bench.common import report
 
 NOT_IN_ALL = "needs --dataset"
 
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dataset", action="append", default=[],
                    help="dataset folder (repeatable, e.g. a 320x240 and a 640x480 survey)")

@@ -21,8 +21,8 @@ from flightrecon.mission import CHECKPOINT, Mission
 
 STAGES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
 
-
 NOT_IN_ALL = "a whole 200-frame flight, about half an hour on 2 cores"
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="default")

@@ -22,14 +22,14 @@ import torch
 
 from flightrecon.active import gaussmi2d
 from flightrecon.active.selectors import Observation, make_selector, splats_of
+from flightrecon.bench.active import library_poses
 from flightrecon.bench.common import report, time_call
-from flightrecon.control.trajectory import FlatState
 from flightrecon.errors import FlightReconError
 from flightrecon.mission import Mission
 from flightrecon.render import sided_feature_sums
 
-
 NOT_IN_ALL = "needs --run"
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", help="run folder with a checkpoint (e.g. from `bench run` or `fly`)")
@@ -38,14 +38,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--methods", default="gaussmi,fisherrf",
                    help="baselines whose own scoring is timed on the same poses (comma separated; '' for none)")
     p.add_argument("--repeat", type=int, default=3)
-
-
-def library_poses(mission: Mission) -> np.ndarray:
-    """Camera poses [C,4,4] of the whole candidate library around the drone's current state."""
-    s = mission.flight.state
-    return mission.candidate_poses(mission.planner.check(
-        FlatState(s.position, np.zeros(3), np.zeros(3), float(s.yaw), 0.0),
-        *mission.planner.library.poses(s.position, s.yaw)))
 
 
 def _sizes(spec: str, mission: Mission) -> list[tuple[int, int]]:
@@ -83,7 +75,7 @@ def _ours(mission: Mission, poses: np.ndarray, width: int, height: int, repeat: 
                                K[None].expand(len(T), 3, 3).contiguous(), width, height, mapper.near, mapper.far,
                                w_min=cfg.reliability.w_min, floor=floor, backend=cfg.mapper.backend)
     best = float(result["exact"].max())
-    contenders = int((first.sums + first.bound >= first.sums.max()).sum())
+    contenders = len(gaussmi2d.can_still_win(first))
     return {"resolution": f"{width}x{height}", "candidates": len(poses), "exact_ms": 1e3 * t_exact,
             "exact_ms_per_cand": 1e3 * t_exact / len(poses), "culled_ms": 1e3 * t_culled,
             "culled_ms_per_cand": 1e3 * t_culled / len(poses), "speedup": t_exact / t_culled,

@@ -28,7 +28,7 @@ from flightrecon.mapping import init as splat_init
 from flightrecon.mapping.frames import StoredFrame, compact_frame, expand_frame
 from flightrecon.mapping.losses import FrameTarget, frame_target, training_loss
 from flightrecon.mapping.optimizer import SparseAdam
-from flightrecon.mapping.store import GaussianMap
+from flightrecon.mapping.store import PARAM_SHAPES, GaussianMap
 from flightrecon.mapping.voxel_hash import reject_near, voxel_keys
 from flightrecon.render import RenderedView, render, render_view_with_sums
 from flightrecon.render.backend_cpu import candidate_rows
@@ -204,7 +204,7 @@ class OnlineMapper:
 
     def splats(self) -> dict[str, torch.Tensor]:
         """The current splat parameters with unit quaternions, as renders of the whole map take them."""
-        p = {name: self.map[name] for name in ("means", "quats", "log_scales", "opacity_logits", "colors")}
+        p = {name: self.map[name] for name in PARAM_SHAPES}
         p["quats"] = torch.nn.functional.normalize(p["quats"], dim=-1)
         return p
 
@@ -223,7 +223,7 @@ class OnlineMapper:
     def render_view(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int,
                     outputs: tuple[str, ...] = ("features", "alpha", "depth")):
         """Render the current map from camera-to-world `T_wc` (one camera)."""
-        p = {name: self.map[name] for name in ("means", "quats", "log_scales", "opacity_logits", "colors")}
+        p = {name: self.map[name] for name in PARAM_SHAPES}
         viewmat = torch.as_tensor(np.linalg.inv(T_wc), dtype=torch.float32, device=self.device)[None]
         Ks = torch.as_tensor(K, dtype=torch.float32, device=self.device)[None]
         return self._render(p, viewmat, Ks, width, height, outputs)
@@ -234,7 +234,7 @@ class OnlineMapper:
         f = self.frames[index]
         target = self._target(f)
         H, W = target.depth.shape[:2]
-        p = {name: self.map[name] for name in ("means", "quats", "log_scales", "opacity_logits", "colors")}
+        p = {name: self.map[name] for name in PARAM_SHAPES}
         out = self._render(p, f.viewmat.to(self.device)[None], f.K.to(self.device)[None], W, H, TRAIN_OUTPUTS)
         return float(self._loss(out, target))
 
