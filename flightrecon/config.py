@@ -181,11 +181,15 @@ class ReliabilityConfig:
     lambda_rNr: float = _f(0.15, 0.0, 1e6)
     loss_floor: float = _f(1e-4, 1e-12, 1.0, doc="L_j is clamped to at least this before the log")
     logodds_clamp: float = _f(10.0, 0.1, 1e3, doc="log-odds are kept in [-c, c]")
+    edge_mask: bool = _f(False, doc="leave the depth and normal terms of the loss image out at occlusion edges of "
+                         "the observed depth, where a pixel mixes two surfaces and the observed normal is undefined "
+                         "(the color term stays); off: the paper's loss image at every pixel")
 
 
 @dataclass(frozen=True)
 class SelectorConfig:
-    method: str = _f("gaussmi2d", doc="view selector: gaussmi2d, gaussmi, fisherrf, activegs, random")
+    method: str = _f("gaussmi2d", doc="view selector: gaussmi2d, gaussmi2d_explore, gaussmi, fisherrf, activegs, random "
+                      "(and the ablations gaussmi2d_now, gaussmi2d_onesided, gaussmi2d_color)")
     scoring_width: int = _f(160, 1, 8192)
     scoring_height: int = _f(120, 1, 8192)
     measurement_prior: str = _f("one", choices=("one", "depth_noise"))
@@ -193,6 +197,13 @@ class SelectorConfig:
                            "last splat whose information gain reaches this, bounding each candidate's MI from "
                            "above and below; candidates that can still win are scored again exactly, so the "
                            "chosen view is the exact argmax. 0: every candidate exactly")
+    explore_voxel: float = _f(0.1, 0.02, 1.0, doc="gaussmi2d_explore: voxel of its own occupancy map (m)")
+    explore_extent: list = _f([16.0, 16.0, 5.0], doc="gaussmi2d_explore: occupancy grid size around the first "
+                              "camera (m)")
+    explore_range: float = _f(5.0, 0.1, 100.0, doc="gaussmi2d_explore: unknown space farther than this along a "
+                              "scoring ray is worth nothing (m)")
+    explore_stride: int = _f(2, 1, 64, doc="gaussmi2d_explore: one frontier ray per this many scoring pixels "
+                             "in each direction, weighted by the pixels it stands for")
 
 
 @dataclass(frozen=True)

@@ -31,7 +31,9 @@ import numpy as np
 import torch
 
 from flightrecon.active.diagnosis import mi_split, move_kind
-from flightrecon.active.selectors import GaussMI2D, Observation, make_selector
+from flightrecon.active.protocol import Observation
+from flightrecon.active.registry import make_selector
+from flightrecon.active.selectors import GaussMI2D
 from flightrecon.config import ScenarioConfig, load_config, to_toml
 from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import write_trajectory_csv
@@ -59,7 +61,6 @@ from flightrecon.sim.world import build_world
 log = logging.getLogger(__name__)
 
 CHECKPOINT = "checkpoint.pkl"
-RELIABLE_LOGODDS = math.log(0.7 / 0.3)  # P(r) > 0.7
 RELIABLE_EMA, RELIABLE_STOP = 0.95, 0.75
 DIAGNOSIS_SURFACE_SAMPLES = 200_000  # ground-truth surface samples of output.diagnose's coverage
 FRAME_COLUMNS = ("frame", "sim_time", "t_capture", "t_map", "t_select_update", "t_plan", "t_score",
@@ -228,10 +229,8 @@ class Mission:
 
     def _update_stopping(self) -> float:
         """GauSS-MI's stopping statistic: an exponential moving average (0.95) of the share of splats
-        whose (front-side) reliability exceeds 0.7; `budget.stop_on_reliability` stops past 75%.
-        Selectors that keep no reliability leave it at 0, so the rule never stops them."""
-        rel = self.mapper.map["reliability"]
-        share = float((rel[:, 0] > RELIABLE_LOGODDS).float().mean()) if len(rel) else 0.0
+        the selector deems reliable; `budget.stop_on_reliability` stops past 75%."""
+        share = self.selector.reliable_share(self.mapper)
         self.state.reliable_ema = RELIABLE_EMA * self.state.reliable_ema + (1 - RELIABLE_EMA) * share
         return self.state.reliable_ema
 
@@ -300,7 +299,7 @@ class Mission:
         if isinstance(self.selector, GaussMI2D):
             c = self.cfg
             pose = torch.as_tensor(self.candidate_poses([chosen])[0], dtype=torch.float32)
-            diag.update(mi_split(self.mapper.splats(), self.mapper.map["reliability"], pose,
+            diag.update(mi_split(self.mapper.splats(), self.selector.reliability(self.mapper), pose,
                                  self.selector.K_score, c.selector.scoring_width, c.selector.scoring_height,
                                  w_min=c.reliability.w_min, clamp=c.reliability.logodds_clamp,
                                  near=self.mapper.near, far=self.mapper.far, backend=c.mapper.backend))

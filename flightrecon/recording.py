@@ -214,13 +214,14 @@ class Recorder:
             quats = torch.nn.functional.normalize(g["quats"][idx], dim=-1).cpu().numpy()
             scales = torch.exp(g["log_scales"][idx]).cpu().numpy()
             colors = g["colors"][idx].clamp(0, 1).cpu().numpy()
-            front = torch.sigmoid(g["reliability"][idx, 0]).cpu().numpy()
+            front = torch.sigmoid(g["reliability"][idx, 0]).cpu().numpy() if "reliability" in g else None
         half = np.concatenate([scales, np.full((len(keep), 1), 1e-3, np.float32)], 1)
         self.rec.log("world/map/splats", rr.Ellipsoids3D(
             centers=means, half_sizes=half, quaternions=quats[:, [1, 2, 3, 0]], colors=_to_u8(colors),
             fill_mode=rr.components.FillMode.Solid))
-        rel = np.stack([1.0 - front, front, np.zeros_like(front)], 1)
-        self.rec.log("world/map/reliability", rr.Points3D(means, colors=_to_u8(rel), radii=0.01))
+        if front is not None:  # 2D GauSS-MI's column (the selectors that keep it)
+            rel = np.stack([1.0 - front, front, np.zeros_like(front)], 1)
+            self.rec.log("world/map/reliability", rr.Points3D(means, colors=_to_u8(rel), radii=0.01))
 
     def candidates(self, results, feasible, scores, chosen) -> None:
         """Every candidate of this step: scored, infeasible (by reason), and the chosen one."""

@@ -4,6 +4,7 @@ The brute force gets T^[i,j] for every splat and pixel by rendering one-hot feat
 the image is splat i's blending weight), then applies Eq. 14 and Eq. 22 as written, with loops.
 """
 
+import dataclasses
 import math
 
 import numpy as np
@@ -12,7 +13,7 @@ import torch
 
 from flightrecon.active import gaussmi2d, reliability
 from flightrecon.config import ReliabilityConfig
-from flightrecon.geometry import camera_pose, intrinsics, rotmat_to_quat
+from flightrecon.geometry import camera_pose, intrinsics, pixel_rays, rotmat_to_quat
 from flightrecon.render import render, render_view_with_sums
 
 CFG = ReliabilityConfig()
@@ -152,3 +153,27 @@ def test_shared_render_gives_the_sums_of_a_unit_feature_render(backend):
     (unit,) = torch.autograd.grad((out.features[0, ..., 0] * v).sum(), ones)
     assert torch.equal(view.splat_sums(v), unit[:, 0])
     assert torch.equal(view.splat_sums(2 * v), 2 * unit[:, 0])  # the graph serves a second question
+
+
+def test_edge_mask_drops_depth_and_normal_terms_only_at_observed_occlusion_edges():
+    """A step in the observed depth (a box in front of a wall): with edge_mask the loss image loses
+    its depth and normal terms on the pixels next to the step and nowhere else."""
+    H, W = 24, 32
+    K = intrinsics(W, H, 90.0)
+    rays = torch.as_tensor(pixel_rays(W, H, K), dtype=torch.float32)
+    depth_obs = torch.full((H, W, 1), 3.0)
+    depth_obs[8:16, 10:20] = 1.5
+    depth_obs[0, 0] = 0.0  # a hole: its neighbours border invalid depth
+    depth = depth_obs + 0.2  # the map renders everything 20 cm too far
+    color = torch.full((H, W, 3), 0.5)
+    normal = torch.zeros(H, W, 3)
+    normal[..., 2] = -1.0
+    cfg = ReliabilityConfig()
+    plain = reliability.loss_image(color, depth, normal, color, depth_obs, rays, cfg, ssim_weight=0.0)
+    masked = reliability.loss_image(color, depth, normal, color, depth_obs, rays,
+                                    dataclasses.replace(cfg, edge_mask=True), ssim_weight=0.0)
+    edge = reliability.depth_edges(depth_obs[..., 0])
+    assert bool(edge[7, 12]) and bool(edge[8, 12]) and bool(edge[0, 1]) and not bool(edge[4, 4])
+    torch.testing.assert_close(masked[~edge], plain[~edge], rtol=0, atol=0)
+    assert torch.all(masked[edge] == 0.0)  # color identical: nothing left at the edges
+    assert torch.all(plain[edge & (depth_obs[..., 0] > 0)] > 0)

@@ -12,7 +12,9 @@ import torch
 
 from flightrecon.active.baselines import (ActiveGSSelector, FisherRFSelector, GaussMISelector, VoxelMap,
                                           activegs_combine, revisit_discount)
-from flightrecon.active.selectors import SELECTORS, Observation, make_selector
+from flightrecon.active.protocol import Observation
+from flightrecon.active.registry import SELECTORS, make_selector
+from flightrecon.active.selectors import GaussMI2D
 from flightrecon.config import load_config
 from flightrecon.geometry import camera_pose, intrinsics, rotmat_to_quat
 from flightrecon.mapping.mapper import OnlineMapper
@@ -218,7 +220,7 @@ def test_ablations_change_exactly_their_switch():
     base = _cfg("gaussmi2d")
     m = _mapper(base)
     rel = torch.tensor(np.random.default_rng(0).normal(0, 2, (len(m.map), 2)), dtype=torch.float32)
-    m.map["reliability"][:] = rel
+    GaussMI2D(base).reliability(m)[:] = rel
     P_neg_log = -np.log(1 / (1 + np.exp(-rel.double().numpy())))
     means = m.map["means"].double().numpy()
     normals = np.tile([-1.0, 0.0, 0.0], (len(means), 1))

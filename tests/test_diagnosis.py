@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from flightrecon.active import gaussmi2d
-from flightrecon.active.diagnosis import KINDS, edge_pixels, mi_split, move_kind, splat_kinds
+from flightrecon.active.diagnosis import KINDS, mi_split, move_kind, splat_kinds
+from flightrecon.active.reliability import depth_edges
 from flightrecon.config import load_config
 from flightrecon.evaluation.coverage import SurfaceCoverage
 from flightrecon.geometry import camera_pose, intrinsics
@@ -48,7 +49,7 @@ def test_edges_are_depth_steps_and_holes():
     d = torch.ones(6, 8)
     d[:, 4:] = 2.0
     d[0, 0] = 0.0
-    e = edge_pixels(d)
+    e = depth_edges(d)
     assert e[:, 3].all() and e[:, 4].all() and not e[3, 1] and e[0, 1] and e[1, 0]
 
 

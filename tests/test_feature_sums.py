@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from flightrecon.active import gaussmi2d
-from flightrecon.active.selectors import splats_of
+from flightrecon.active.protocol import scoring_intrinsics
 from flightrecon.config import load_config
 from flightrecon.control.trajectory import FlatState
 from flightrecon.errors import DataError, FlightReconError
@@ -141,8 +141,8 @@ def flown():
 @pytest.mark.parametrize("kind", ["flown", "all_reliable", "none_reliable", "mixed"])
 def test_culled_scoring_picks_the_exact_argmax(flown, kind):
     mission, poses = flown
-    splats = splats_of(mission.mapper)
-    rel = mission.mapper.map["reliability"].clone()
+    splats = mission.mapper.splats()
+    rel = mission.selector.reliability(mission.mapper).clone()
     N = rel.shape[0]
     g = torch.Generator().manual_seed(11)
     if kind == "all_reliable":
@@ -152,8 +152,7 @@ def test_culled_scoring_picks_the_exact_argmax(flown, kind):
     elif kind == "mixed":
         rel = torch.where(torch.rand(N, 2, generator=g) < 0.8, torch.tensor(10.0), rel)
     c = mission.cfg
-    K = gaussmi2d.scoring_intrinsics(torch.as_tensor(mission.K, dtype=torch.float32), c.camera.width,
-                                     c.camera.height, c.selector.scoring_width, c.selector.scoring_height)
+    K = scoring_intrinsics(c)
     args = dict(w_min=c.reliability.w_min, near=mission.mapper.near, far=mission.mapper.far, backend="cpu")
     w, h = c.selector.scoring_width, c.selector.scoring_height
     exact = gaussmi2d.score_candidates(splats, rel, poses, K, w, h, **args)
@@ -176,11 +175,10 @@ def test_culled_scoring_picks_the_exact_argmax(flown, kind):
 @pytest.mark.slow
 def test_kernel_scoring_equals_torch_statement_on_flown_map(flown):
     mission, poses = flown
-    splats = splats_of(mission.mapper)
-    rel = mission.mapper.map["reliability"]
+    splats = mission.mapper.splats()
+    rel = mission.selector.reliability(mission.mapper)
     c = mission.cfg
-    K = gaussmi2d.scoring_intrinsics(torch.as_tensor(mission.K, dtype=torch.float32), c.camera.width,
-                                     c.camera.height, c.selector.scoring_width, c.selector.scoring_height)
+    K = scoring_intrinsics(c)
     w, h = c.selector.scoring_width, c.selector.scoring_height
     got = gaussmi2d.score_candidates(splats, rel, poses, K, w, h, w_min=0.1, near=mission.mapper.near,
                                      far=mission.mapper.far, backend="cpu")

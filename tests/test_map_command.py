@@ -3,7 +3,6 @@
 import json
 
 import cv2
-import numpy as np
 import pytest
 from skimage.metrics import peak_signal_noise_ratio
 

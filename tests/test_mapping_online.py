@@ -98,6 +98,7 @@ def test_pruning_keeps_every_column_of_the_kept_splats_in_step(views):
     g = mapper.map
     g.add_column("tag", (), torch.int64)
     g["tag"][:] = torch.arange(len(g))
+    g.add_column("reliability", (2,), torch.float32)
     g["reliability"][:] = torch.randn(len(g), 2, generator=torch.Generator().manual_seed(0))
     before = {name: g[name].clone() for name in g._cols}
     opacity = torch.sigmoid(g["opacity_logits"])

@@ -22,6 +22,7 @@ def _map(n: int = 257) -> GaussianMap:
     gmap.append(frame=0, means=torch.randn(n, 3, generator=g), quats=torch.randn(n, 4, generator=g),
                 log_scales=torch.randn(n, 2, generator=g) - 3, opacity_logits=torch.randn(n, generator=g),
                 colors=torch.rand(n, 3, generator=g))
+    gmap.add_column("reliability", (2,), torch.float32)  # 2D GauSS-MI's column, which the extras carry
     gmap["reliability"][:] = torch.randn(n, 2, generator=g)
     gmap["frame_created"][:] = torch.arange(n, dtype=torch.int32) // 10
     gmap["n_observed"][:] = torch.arange(n, dtype=torch.int32) % 7
@@ -49,7 +50,7 @@ def test_default_file_holds_the_2dgs_columns_alone(tmp_path):
     for name in ("means", "quats", "log_scales", "opacity_logits"):
         assert torch.equal(back[name], gmap[name]), name
     torch.testing.assert_close(back["colors"], gmap["colors"], rtol=0, atol=1e-6)  # through f_dc in float32
-    assert torch.all(back["reliability"] == 0) and torch.all(back["n_observed"] == 0)
+    assert "reliability" not in back and torch.all(back["n_observed"] == 0)
 
 
 def test_file_has_2dgs_layout_and_opens_in_trimesh(tmp_path):
@@ -83,7 +84,7 @@ def test_plain_2dgs_file_loads_colors_from_sh(tmp_path):
     PlyData([PlyElement.describe(arr, "vertex")]).write(str(path))
     gmap = load_map(path)
     np.testing.assert_allclose(gmap["colors"][:, 2].numpy(), 0.8, atol=1e-6)
-    assert torch.all(gmap["reliability"] == 0)
+    assert "reliability" not in gmap
 
 
 def test_bad_files_raise_data_error_naming_the_file(tmp_path):

@@ -30,6 +30,7 @@ def test_keep_compacts_every_column_including_optimizer_state():
     adam = SparseAdam(gmap, {"means": 0.1})
     gmap.append(frame=0, **_params(5, 2))
     gmap["adam_m.means"][:] = torch.arange(5.0)[:, None]
+    gmap.add_column("reliability", (2,), torch.float32)
     gmap["reliability"][:, 0] = torch.arange(5.0)
     means = gmap["means"].clone()
     mask = torch.tensor([True, False, True, False, True])

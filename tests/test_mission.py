@@ -108,7 +108,7 @@ def test_resume_of_a_folder_without_a_run_names_it(tmp_path):
 
 
 def test_unknown_method_names_the_key():
-    from flightrecon.active.selectors import make_selector
+    from flightrecon.active.registry import make_selector
 
     with pytest.raises(FlightReconError, match="selector.method"):
         make_selector(load_config("demo", ["selector.method=nope"]))
@@ -127,6 +127,6 @@ def test_a_non_finite_map_names_the_frame_the_stage_and_the_column(tmp_path):
     with pytest.raises(DataError, match=r"^frame 1, stage mapping: render: quats contains NaN or inf"):
         mission._step(last=False)
     mission.mapper.map["quats"][7] = 1.0
-    mission.mapper.map["reliability"][4, 1] = float("inf")
+    mission.selector.reliability(mission.mapper)[4, 1] = float("inf")
     with pytest.raises(DataError, match=r"map column 'reliability' holds NaN or inf at 1 of \d+ splats \(first: splat 4\)"):
         mission.mapper.map.check_finite()

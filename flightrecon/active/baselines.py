@@ -1,9 +1,10 @@
-"""The paper's baselines and the ablations of 2D GauSS-MI, as view selectors (spec/baselines.md).
+"""The paper's baselines as view selectors (docs/baselines.md).
 
 All of them share our online 2DGS mapper, our planner and our candidate library (the loop hands
 every selector the same feasible candidates), so a comparison isolates the selection criterion.
-Per-splat state lives in columns of the GaussianMap (`add_column`), so it stays aligned with the
-splats through growth and pruning.
+Per-splat state lives in columns each selector adds to the GaussianMap (`protocol.ensure_column`),
+so it stays aligned with the splats through growth and pruning. None of them keeps 2D reliability,
+so `reliable_share` is 0 and the stopping rule never stops them.
 
 - `gaussmi` (Xie and Pan, RSS 2025): four world-horizontal reliability log-odds per splat
   [+x, +y, -x, -y], updated from its loss image L = 0.95 |I - I_obs| + 0.05 |D - D_obs|; view score
@@ -24,37 +25,23 @@ splats through growth and pruning.
   from the last captured camera, and "all voxels" is the fixed grid `baselines.activegs_extent`
   centered on the first camera. A splat counts as seen in a view when its total blend weight over
   the image exceeds 0.03 and it faces the camera.
-- Ablations of ours: `gaussmi2d_now` (no |w| weight in update and gain), `gaussmi2d_onesided` (one
-  reliability per splat), `gaussmi2d_color` (color-only loss image: lambda_rD = lambda_rNr = 0).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 import torch
 
-from flightrecon.active.gaussmi2d import scoring_intrinsics
+from flightrecon.active.protocol import Observation, capture_view, ensure_column, float_tensor, scoring_intrinsics
 from flightrecon.active.reliability import observation_weights, splat_normals
-from flightrecon.active.selectors import GaussMI2D, Observation, capture_view, register, splats_of
 from flightrecon.config import ScenarioConfig
-from flightrecon.geometry import intrinsics, pixel_rays, yaw_of_camera
+from flightrecon.geometry import pixel_rays, yaw_of_camera
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.render import FisherDiag, render, render_fisher_diag
 
 EXPLORE_RANGE = 5.0  # m, ActiveGS's utility range
-
-
-def _t(a, device) -> torch.Tensor:
-    return torch.as_tensor(np.asarray(a, np.float32), device=device)
-
-
-def _ensure_column(mapper: OnlineMapper, name: str, shape: tuple[int, ...]) -> torch.Tensor:
-    if name not in mapper.map:
-        mapper.map.add_column(name, shape, torch.float32)
-    return mapper.map[name]
 
 
 def _render(splats: dict, features: torch.Tensor, viewmats: torch.Tensor, K: torch.Tensor, W: int, H: int,
@@ -68,11 +55,12 @@ def _render(splats: dict, features: torch.Tensor, viewmats: torch.Tensor, K: tor
 class _Scoring:
     """Shared: the scoring intrinsics of the config's camera at the selector's scoring resolution."""
 
-    def __init__(self, cfg: ScenarioConfig, width: int, height: int) -> None:
-        c = cfg.camera
-        K = torch.tensor(intrinsics(c.width, c.height, c.hfov_deg), dtype=torch.float32)
-        self.width, self.height = width, height
-        self.K_score = scoring_intrinsics(K, c.width, c.height, width, height)
+    def __init__(self, cfg: ScenarioConfig, width: int | None = None, height: int | None = None) -> None:
+        self.width, self.height = width or cfg.selector.scoring_width, height or cfg.selector.scoring_height
+        self.K_score = scoring_intrinsics(cfg, self.width, self.height)
+
+    def reliable_share(self, mapper: OnlineMapper) -> float:
+        return 0.0
 
 
 # ---------------------------------------------------------------------------------- GauSS-MI
@@ -110,24 +98,24 @@ class GaussMISelector(_Scoring):
     COLUMN = "gaussmi_logodds"
 
     def __init__(self, cfg: ScenarioConfig) -> None:
-        super().__init__(cfg, cfg.selector.scoring_width, cfg.selector.scoring_height)
+        super().__init__(cfg)
         self.cfg = cfg
         self.visited: list[tuple[int, np.ndarray, float]] = []
 
     def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
         b = self.cfg.baselines
         dev = mapper.device
-        logodds = _ensure_column(mapper, self.COLUMN, (4,))
+        logodds = ensure_column(mapper, self.COLUMN, (4,))
         self.visited.append((obs.index, np.asarray(obs.T_wc[:3, 3], float), yaw_of_camera(obs.T_wc)))
         if len(mapper.map) == 0:
             return {}
-        sp = splats_of(mapper)
-        T = _t(obs.T_wc, dev)
+        sp = mapper.splats()
+        T = float_tensor(obs.T_wc, dev)
         view = capture_view(mapper, obs)
         out = view.output
-        depth_obs = _t(obs.depth, dev)[..., None]
+        depth_obs = float_tensor(obs.depth, dev)[..., None]
         valid = depth_obs[..., 0] > 0
-        L = gaussmi_loss_image(out.features[0], out.depth[0], _t(obs.rgb, dev), depth_obs)
+        L = gaussmi_loss_image(out.features[0], out.depth[0], float_tensor(obs.rgb, dev), depth_obs)
         v = torch.where(valid, -torch.log((b.gaussmi_lambda_L * L).clamp_min(1e-4)), 0.0)
         S = view.splat_sums(v)
         cover = view.splat_sums(valid.float())
@@ -143,9 +131,9 @@ class GaussMISelector(_Scoring):
         dev = mapper.device
         if len(mapper.map) == 0:
             return torch.zeros(len(poses), dtype=torch.float64)
-        sp = splats_of(mapper)
-        logodds = _ensure_column(mapper, self.COLUMN, (4,))
-        T = _t(poses, dev)
+        sp = mapper.splats()
+        logodds = ensure_column(mapper, self.COLUMN, (4,))
+        T = float_tensor(poses, dev)
         scores = []
         for s in range(0, len(T), 64):
             Tc = T[s:s + 64]
@@ -173,7 +161,7 @@ class FisherRFSelector(_Scoring):
     CHUNK_BYTES = 256 << 20  # per Hessian call: the kernel's [C,N,66] buffer plus the pairs' G and J
 
     def __init__(self, cfg: ScenarioConfig) -> None:
-        super().__init__(cfg, cfg.selector.scoring_width, cfg.selector.scoring_height)
+        super().__init__(cfg)
         self.cfg = cfg
         self.train_poses: list[np.ndarray] = []
 
@@ -184,11 +172,11 @@ class FisherRFSelector(_Scoring):
     def _chunks(self, mapper: OnlineMapper, poses: np.ndarray, reduce: bool):
         """Diagonal Hessians of the views T_wc [V,4,4], a chunk of cameras per kernel call (sized so
         a call stays within CHUNK_BYTES, about 1 KB per camera and splat)."""
-        sp = splats_of(mapper)
+        sp = mapper.splats()
         step = int(min(64, max(1, self.CHUNK_BYTES // (1024 * max(1, len(mapper.map))))))
         K = self.K_score.to(mapper.device)
         for s in range(0, len(poses), step):
-            vm = torch.linalg.inv(_t(poses[s:s + step], mapper.device))
+            vm = torch.linalg.inv(float_tensor(poses[s:s + step], mapper.device))
             yield render_fisher_diag(sp["means"], sp["quats"], sp["log_scales"], sp["opacity_logits"],
                                      sp["colors"], vm, K[None].expand(vm.shape[0], 3, 3).contiguous(),
                                      self.width, self.height, mapper.near, mapper.far, reduce=reduce)
@@ -308,8 +296,8 @@ class ActiveGSSelector(_Scoring):
         self.last_center: np.ndarray | None = None
 
     def confidence(self, mapper: OnlineMapper) -> torch.Tensor:
-        return surfel_confidence(_ensure_column(mapper, "ags_nobs", ()), _ensure_column(mapper, "ags_vsum", (3,)),
-                                 _ensure_column(mapper, "ags_S", ()))
+        return surfel_confidence(ensure_column(mapper, "ags_nobs", ()), ensure_column(mapper, "ags_vsum", (3,)),
+                                 ensure_column(mapper, "ags_S", ()))
 
     def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
         b = self.cfg.baselines
@@ -317,13 +305,13 @@ class ActiveGSSelector(_Scoring):
             self.voxels = VoxelMap(obs.T_wc[:3, 3], b.activegs_extent, b.activegs_voxel)
         self.voxels.integrate(obs.depth, obs.K, obs.T_wc)
         self.last_center = np.asarray(obs.T_wc[:3, 3], float)
-        n_obs, v_sum, S = (_ensure_column(mapper, "ags_nobs", ()), _ensure_column(mapper, "ags_vsum", (3,)),
-                           _ensure_column(mapper, "ags_S", ()))
+        n_obs, v_sum, S = (ensure_column(mapper, "ags_nobs", ()), ensure_column(mapper, "ags_vsum", (3,)),
+                           ensure_column(mapper, "ags_S", ()))
         if len(mapper.map) == 0:
             return {}
         dev = mapper.device
-        sp = splats_of(mapper)
-        T = _t(obs.T_wc, dev)
+        sp = mapper.splats()
+        T = float_tensor(obs.T_wc, dev)
         H, W = obs.depth.shape
         weight = capture_view(mapper, obs).splat_sums(torch.ones(H, W, device=dev))
         to_cam = T[:3, 3][None] - sp["means"]
@@ -348,9 +336,9 @@ class ActiveGSSelector(_Scoring):
         exploit = np.zeros(len(poses))
         if len(mapper.map):
             dev = mapper.device
-            sp = splats_of(mapper)
+            sp = mapper.splats()
             conf = self.confidence(mapper)[:, None]
-            T = _t(poses, dev)
+            T = float_tensor(poses, dev)
             for s in range(0, len(T), 64):
                 out = _render(sp, conf, torch.linalg.inv(T[s:s + 64]), self.K_score.to(dev), self.width,
                               self.height, mapper, ("features", "alpha", "depth"), self.cfg.mapper.backend)
@@ -366,27 +354,3 @@ class ActiveGSSelector(_Scoring):
             lengths = np.linalg.norm(np.asarray(poses)[:, :3, 3] - ref, axis=-1)
         return activegs_combine(self.utilities(mapper, poses), np.asarray(lengths, float),
                                 self.cfg.baselines.activegs_path_weight)
-
-
-# ---------------------------------------------------------------------------------- ablations
-class GaussMI2DNoWeight(GaussMI2D):
-    name = "gaussmi2d_now"
-    weighted = False
-
-
-class GaussMI2DOneSided(GaussMI2D):
-    name = "gaussmi2d_onesided"
-    one_sided = True
-
-
-class GaussMI2DColorOnly(GaussMI2D):
-    name = "gaussmi2d_color"
-
-    def __init__(self, cfg: ScenarioConfig) -> None:
-        color_only = dataclasses.replace(cfg.reliability, lambda_rD=0.0, lambda_rNr=0.0)
-        super().__init__(dataclasses.replace(cfg, reliability=color_only))
-
-
-for _cls in (GaussMISelector, FisherRFSelector, ActiveGSSelector, GaussMI2DNoWeight, GaussMI2DOneSided,
-             GaussMI2DColorOnly):
-    register(_cls.name, _cls)

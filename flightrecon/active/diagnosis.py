@@ -18,12 +18,12 @@ import torch
 import torch.nn.functional as F
 
 from flightrecon.active.gaussmi2d import information_gain
-from flightrecon.active.reliability import BACK, FRONT, observation_weights, observed_side, splat_normals
+from flightrecon.active.reliability import (BACK, FRONT, depth_edges, observation_weights, observed_side,
+                                           splat_normals)
 from flightrecon.render import render
 
 KINDS = ("back_unseen", "back_seen", "front_unseen", "negative", "weak", "strong", "clamped")
 STRONG = 5.0  # log-odds from which a side counts as strongly reliable (P > 0.993)
-EDGE_JUMP = 0.1  # relative depth step to a 4-neighbour that marks a pixel as an occlusion edge
 
 
 def splat_kinds(w: torch.Tensor, reliability: torch.Tensor, w_min: float, clamp: float) -> torch.Tensor:
@@ -38,23 +38,6 @@ def splat_kinds(w: torch.Tensor, reliability: torch.Tensor, w_min: float, clamp:
     kind[front] = torch.where(f == 0, 2, torch.where(f < 0, 3, torch.where(f < STRONG, 4, torch.where(
         f < clamp - 1e-3, 5, 6))))
     return kind
-
-
-def edge_pixels(depth: torch.Tensor) -> torch.Tensor:
-    """[H,W] bool: pixels whose depth differs from a 4-neighbour's by more than EDGE_JUMP relative,
-    or that border a pixel with no depth."""
-    d = depth
-    edge = torch.zeros_like(d, dtype=torch.bool)
-    for a, b in ((d[1:], d[:-1]), (d[:, 1:], d[:, :-1])):
-        jump = (a - b).abs() > EDGE_JUMP * torch.minimum(a, b).clamp_min(1e-6)
-        jump |= (a > 0) != (b > 0)
-        if a.shape[0] < d.shape[0]:
-            edge[1:] |= jump
-            edge[:-1] |= jump
-        else:
-            edge[:, 1:] |= jump
-            edge[:, :-1] |= jump
-    return edge
 
 
 @torch.no_grad()
@@ -73,7 +56,7 @@ def mi_split(splats: dict[str, torch.Tensor], reliability: torch.Tensor, T_wc: t
                  outputs=("features", "depth"), backend=backend)
     img = out.features[0].double()  # [H,W,kinds]
     total = float(img.sum())
-    edge = edge_pixels(out.depth[0, ..., 0])
+    edge = depth_edges(out.depth[0, ..., 0])
     row = {f"mi_{k}": float(img[..., i].sum()) for i, k in enumerate(KINDS)}
     row["mi"] = total
     row["mi_edge_share"] = float(img[edge].sum()) / total if total > 0 else math.nan

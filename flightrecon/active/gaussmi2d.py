@@ -41,21 +41,16 @@ def information_gain(reliability: torch.Tensor, w: torch.Tensor, w_min: float,
     return side_values(w, F.softplus(-reliability), w_min, weighted)  # softplus(-l) = -log sigmoid(l)
 
 
-def scoring_intrinsics(K: torch.Tensor, width: int, height: int, score_w: int, score_h: int) -> torch.Tensor:
-    """K of the same camera rendered at the scoring resolution (same field of view)."""
-    Ks = K.clone()
-    Ks[0] *= score_w / width
-    Ks[1] *= score_h / height
-    return Ks
-
-
 @torch.no_grad()
 def score_candidates(splats: dict[str, torch.Tensor], reliability: torch.Tensor, T_wc: torch.Tensor,
                      K: torch.Tensor, width: int, height: int, *, w_min: float, near: float, far: float,
                      prior: str = "one", chunk: int = 64, backend: str = "auto", weighted: bool = True,
-                     one_sided: bool = False, gain_floor: float = 0.0) -> torch.Tensor:
+                     one_sided: bool = False, gain_floor: float = 0.0,
+                     offset: torch.Tensor | None = None) -> torch.Tensor:
     """Expected MI [C] of candidate camera poses T_wc [C,4,4] rendered with K at width x height.
-    Ablations (see reliability.update_from_frame): `weighted=False`, `one_sided=True`.
+    Ablations (see reliability.update_from_frame): `weighted=False`, `one_sided=True`. `offset` [C]
+    (float64) is a per-candidate term added to the MI (gaussmi2d_explore's frontier gain); the cut
+    below ranks the sums with it, so the argmax stays exact for the total.
 
     With prior "one" the MI is the pixel sum of the sided gain (render.sided_feature_sums). With
     `gain_floor` > 0 a first pass drops, per tile, the splats behind the last one whose gain reaches
@@ -63,12 +58,13 @@ def score_candidates(splats: dict[str, torch.Tensor], reliability: torch.Tensor,
     upper end reaches the best lower end are scored again exactly. Those keep their exact MI, the
     others their lower bound, so the argmax is the exact argmax."""
     C = T_wc.shape[0]
+    extra = torch.zeros(C, dtype=torch.float64) if offset is None else offset.double().cpu()
     if C == 0 or splats["means"].shape[0] == 0:
-        return torch.zeros(C, dtype=torch.float64)
+        return extra
     if prior == "depth_noise":
-        return _score_with_depth_prior(splats, reliability, T_wc, K, width, height, w_min=w_min, near=near,
-                                       far=far, chunk=chunk, backend=backend, weighted=weighted,
-                                       one_sided=one_sided)
+        return extra + _score_with_depth_prior(splats, reliability, T_wc, K, width, height, w_min=w_min,
+                                               near=near, far=far, chunk=chunk, backend=backend,
+                                               weighted=weighted, one_sided=one_sided).cpu()
     neg_log_p = F.softplus(-reliability)  # -log sigmoid(l): the gain of each side before |w|
     sided = neg_log_p[:, :1].expand(-1, 2).contiguous() if one_sided else neg_log_p
     viewmats = torch.linalg.inv(T_wc)
@@ -81,16 +77,18 @@ def score_candidates(splats: dict[str, torch.Tensor], reliability: torch.Tensor,
 
     everyone = torch.arange(C)
     first = sums(everyone, gain_floor)
-    scores = first.sums.clone()
+    scores = first.sums.double().cpu() + extra
     if gain_floor > 0 and bool((first.bound > 0).any()):
-        contenders = can_still_win(first)
-        scores[contenders] = sums(contenders, 0.0).sums
+        contenders = can_still_win(first, extra)
+        scores[contenders] = sums(contenders, 0.0).sums.double().cpu() + extra[contenders]
     return scores
 
 
-def can_still_win(first: FeatureSums) -> torch.Tensor:
-    """Indices of the candidates whose upper bound reaches the best lower bound of a cut pass."""
-    return torch.nonzero(first.sums + first.bound >= first.sums.max(), as_tuple=True)[0]
+def can_still_win(first: FeatureSums, offset: torch.Tensor | None = None) -> torch.Tensor:
+    """Indices of the candidates whose upper bound reaches the best lower bound of a cut pass
+    (with a per-candidate `offset` added to both bounds)."""
+    lower = first.sums.double().cpu() + (0.0 if offset is None else offset)
+    return torch.nonzero(lower + first.bound.double().cpu() >= lower.max(), as_tuple=True)[0]
 
 
 def _score_with_depth_prior(splats, reliability, T_wc, K, width, height, *, w_min, near, far, chunk, backend,

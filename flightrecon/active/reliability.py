@@ -20,7 +20,8 @@ log-odds are kept in [-logodds_clamp, logodds_clamp] (default 10, GauSS-MI's), s
 Loss image details: L_C = (1 - s) |C - C_obs| (mean over RGB) + s (1 - SSIM_j) with the mapper's
 D-SSIM weight s and an 11x11 Gaussian SSIM (border pixels, where the window does not fit, use the
 L1 term alone); L_D = |D - D_obs| in meters and L_Nrend = 1 - N . N_obs (N_obs from the observed
-depth) are added only where the observed depth is valid.
+depth) are added only where the observed depth is valid, and with `edge_mask` not at occlusion edges
+of the observed depth (`depth_edges`), where a pixel mixes two surfaces.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from flightrecon.render.feature_sums import view_cosines
 from flightrecon.render.projection import quat_to_rotmat
 
 FRONT, BACK, SKIP = 0, 1, -1
+EDGE_JUMP = 0.1  # relative depth step to a 4-neighbour that marks a pixel as an occlusion edge
 
 
 def splat_normals(quats: torch.Tensor) -> torch.Tensor:
@@ -56,6 +58,23 @@ def observed_side(w: torch.Tensor, w_min: float) -> torch.Tensor:
     return side
 
 
+def depth_edges(depth: torch.Tensor) -> torch.Tensor:
+    """[H,W] bool: pixels whose depth differs from a 4-neighbour's by more than EDGE_JUMP relative,
+    or that border a pixel with no depth (0)."""
+    d = depth
+    edge = torch.zeros_like(d, dtype=torch.bool)
+    for a, b in ((d[1:], d[:-1]), (d[:, 1:], d[:, :-1])):
+        jump = (a - b).abs() > EDGE_JUMP * torch.minimum(a, b).clamp_min(1e-6)
+        jump |= (a > 0) != (b > 0)
+        if a.shape[0] < d.shape[0]:
+            edge[1:] |= jump
+            edge[:-1] |= jump
+        else:
+            edge[:, 1:] |= jump
+            edge[:, :-1] |= jump
+    return edge
+
+
 def loss_image(color: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor, rgb_obs: torch.Tensor,
                depth_obs: torch.Tensor, rays: torch.Tensor, cfg: ReliabilityConfig,
                ssim_weight: float) -> torch.Tensor:
@@ -72,6 +91,8 @@ def loss_image(color: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor, r
         dssim = 1.0 - ssim_map(color, rgb_obs).mean(-1)
         L[r:-r, r:-r] = (1.0 - ssim_weight) * l1[r:-r, r:-r] + ssim_weight * dssim
     valid = depth_obs[..., 0] > 0
+    if cfg.edge_mask:
+        valid = valid & ~depth_edges(depth_obs[..., 0])
     n_obs = normals_from_depth(depth_obs, rays)
     has_normal = valid & (n_obs.abs().sum(-1) > 0)
     L_D = (depth - depth_obs).abs()[..., 0]

@@ -23,7 +23,8 @@ import torch
 from scipy.stats import spearmanr
 
 from flightrecon.active import gaussmi2d
-from flightrecon.active.selectors import splats_of
+from flightrecon.active.protocol import scoring_intrinsics
+from flightrecon.active.selectors import GaussMI2D
 from flightrecon.bench.common import report, time_call
 from flightrecon.config import load_config
 from flightrecon.control.trajectory import FlatState
@@ -60,10 +61,9 @@ def _score_times(mission: Mission, width: int, height: int, repeat: int) -> dict
     """Median seconds to score the library poses (MI) and to plain-render them, at width x height."""
     poses = torch.as_tensor(library_poses(mission), dtype=torch.float32)
     c = mission.cfg
-    K = torch.as_tensor(mission.K, dtype=torch.float32)
-    Ks = gaussmi2d.scoring_intrinsics(K, c.camera.width, c.camera.height, width, height)
-    splats = splats_of(mission.mapper)
-    rel = mission.mapper.map["reliability"]
+    Ks = scoring_intrinsics(c, width, height)
+    splats = mission.mapper.splats()
+    rel = GaussMI2D(c).reliability(mission.mapper)
     near, far = mission.mapper.near, mission.mapper.far
 
     last: list = []  # the scores of the last timed call, for the ranking comparison

@@ -21,7 +21,9 @@ import numpy as np
 import torch
 
 from flightrecon.active import gaussmi2d
-from flightrecon.active.selectors import Observation, make_selector, splats_of
+from flightrecon.active.protocol import Observation, scoring_intrinsics
+from flightrecon.active.registry import make_selector
+from flightrecon.active.selectors import GaussMI2D
 from flightrecon.bench.active import library_poses
 from flightrecon.bench.common import report, time_call
 from flightrecon.errors import FlightReconError
@@ -53,11 +55,10 @@ def _sizes(spec: str, mission: Mission) -> list[tuple[int, int]]:
 def _ours(mission: Mission, poses: np.ndarray, width: int, height: int, repeat: int) -> dict:
     cfg = mission.cfg
     mapper = mission.mapper
-    splats = splats_of(mapper)
-    rel = mapper.map["reliability"]
+    splats = mapper.splats()
+    rel = GaussMI2D(cfg).reliability(mapper)
     T = torch.as_tensor(poses, dtype=torch.float32)
-    K = gaussmi2d.scoring_intrinsics(torch.as_tensor(mission.K, dtype=torch.float32), cfg.camera.width,
-                                     cfg.camera.height, width, height)
+    K = scoring_intrinsics(cfg, width, height)
     floor = cfg.selector.gain_floor
     common = dict(w_min=cfg.reliability.w_min, near=mapper.near, far=mapper.far, backend=cfg.mapper.backend)
     result: dict = {}

@@ -46,12 +46,11 @@ def plan_runs(scenario: str, scenes: list[str], methods: list[str], seeds: int, 
     root = run_root or base.output.run_root
     specs = [RunSpec(scenario, sc, m, k, tuple(overrides), root) for sc in scenes for m in methods
              for k in range(seeds)]
-    from flightrecon.active.selectors import SELECTORS
+    from flightrecon.active.registry import check_method
 
     for s in specs:
         s.config()
-        if s.method not in SELECTORS:
-            raise FlightReconError(f"sweep: unknown method {s.method!r} (available: {', '.join(sorted(SELECTORS))})")
+        check_method(s.method, key="sweep --methods")
     return specs
 
 

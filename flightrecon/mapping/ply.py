@@ -27,6 +27,8 @@ from flightrecon.mapping.store import META_SHAPES, PARAM_SHAPES, GaussianMap
 SH_C0 = 0.28209479177387814
 FLAT_LOG_SCALE = float(np.log(1e-6))
 
+# The 2D GauSS-MI selector's column, which the extras carry when the map has it (zeros otherwise).
+RELIABILITY = "reliability"
 # PLY property -> (map column, component index or None for scalars)
 _LAYOUT: list[tuple[str, str, int | None]] = (
     [(f"{a}", "means", i) for i, a in enumerate("xyz")]
@@ -41,8 +43,10 @@ _LAYOUT: list[tuple[str, str, int | None]] = (
 
 def save_map(gmap: GaussianMap, path: str | Path, for_3dgs: bool = False, extras: bool = False) -> Path:
     """Write the map as a binary little-endian PLY (atomic); `extras` adds our own columns."""
-    cols = {name: gmap[name].detach().cpu().numpy() for name in list(PARAM_SHAPES) + list(META_SHAPES)}
     n = len(gmap)
+    cols = {name: gmap[name].detach().cpu().numpy() for name in list(PARAM_SHAPES) + list(META_SHAPES)}
+    cols[RELIABILITY] = (gmap[RELIABILITY].detach().cpu().numpy() if RELIABILITY in gmap
+                         else np.zeros((n, 2), np.float32))
     normals = quat_to_rotmat(cols["quats"].astype(np.float64))[..., :, 2] if n else np.zeros((0, 3))
     f_dc = (cols["colors"].astype(np.float64) - 0.5) / SH_C0
     fields: list[tuple[str, np.ndarray]] = [(a, cols["means"][:, i]) for i, a in enumerate("xyz")]
@@ -100,6 +104,8 @@ def load_map(path: str | Path, device: str | torch.device = "cpu") -> GaussianMa
         if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
             raise DataError(f"map file {path} holds NaN or inf in {name}")
     gmap = GaussianMap(capacity=max(n, 1), device=device)
+    if RELIABILITY in cols:
+        gmap.add_column(RELIABILITY, (2,), torch.float32)
     frame = cols.pop("frame_created", np.zeros(n, np.int32))
     gmap.append(frame=0, **{k: torch.from_numpy(np.ascontiguousarray(a)) for k, a in cols.items()})
     gmap["frame_created"][:] = torch.from_numpy(np.ascontiguousarray(frame))
@@ -109,5 +115,7 @@ def load_map(path: str | Path, device: str | torch.device = "cpu") -> GaussianMa
 def _column_spec(col: str) -> tuple[tuple[int, ...], np.dtype]:
     if col in PARAM_SHAPES:
         return PARAM_SHAPES[col], np.dtype(np.float32)
+    if col == RELIABILITY:
+        return (2,), np.dtype(np.float32)
     shape, dtype = META_SHAPES[col]
     return shape, np.dtype(str(dtype).removeprefix("torch."))

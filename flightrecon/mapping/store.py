@@ -12,7 +12,7 @@ import torch
 
 from flightrecon.errors import DataError
 
-# Trainable splat parameters (design.md): name -> trailing shape.
+# Trainable splat parameters (docs/architecture.md, "The map"): name -> trailing shape.
 PARAM_SHAPES: dict[str, tuple[int, ...]] = {
     "means": (3,),
     "quats": (4,),  # (w, x, y, z), not necessarily normalized
@@ -20,9 +20,8 @@ PARAM_SHAPES: dict[str, tuple[int, ...]] = {
     "opacity_logits": (),
     "colors": (3,),  # linear RGB, view-independent (no spherical harmonics, as in the paper)
 }
-# Bookkeeping columns: name -> (trailing shape, dtype).
+# Bookkeeping columns: name -> (trailing shape, dtype). Selectors add their own columns (add_column).
 META_SHAPES: dict[str, tuple[tuple[int, ...], torch.dtype]] = {
-    "reliability": ((2,), torch.float32),  # log-odds [front, back], owned by the active module
     "frame_created": ((), torch.int32),
     "n_observed": ((), torch.int32),  # frames in which the splat was visible during its own update
 }
