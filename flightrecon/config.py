@@ -283,6 +283,12 @@ class ScenarioConfig:
     baselines: BaselinesConfig = field(default_factory=BaselinesConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
 
+    @property
+    def required_clearance(self) -> float:
+        """Clearance the planner keeps between obstacles and the drone's center: drone.body_radius +
+        planner.safety_margin (m)."""
+        return self.drone.body_radius + self.planner.safety_margin
+
 
 def _check_value(key: str, value: Any, ftype: Any, meta: dict) -> Any:
     """Coerce `value` to the field's type and check its range; raise ConfigError naming `key`."""
@@ -385,11 +391,6 @@ def load_config(source: str | Path | None = None, overrides: list[str] | tuple[s
         data.setdefault("name", path.stem)
     for text in overrides:
         data = _merge(data, parse_override(text))
-    return _build(ScenarioConfig, data, "")
-
-
-def config_from_dict(data: dict) -> ScenarioConfig:
-    """Validate a plain dict (e.g. a run's saved config) into a ScenarioConfig."""
     return _build(ScenarioConfig, data, "")
 
 

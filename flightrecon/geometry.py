@@ -1,6 +1,6 @@
 """Poses, intrinsics and frame conventions: the one place where frames are converted.
 
-Conventions (design.md):
+Conventions (docs/architecture.md, "Conventions"):
 - World: z up, meters, radians. Body (drone): x forward, y left, z up.
 - Camera, for all vision math: OpenCV (x right, y down, z forward). MuJoCo cameras look along -z
   with y up; `R_CV_FROM_MJ` converts.

@@ -1,4 +1,4 @@
-"""The closed loop of active reconstruction (design.md, "One active step").
+"""The closed loop of active reconstruction (docs/architecture.md, "One active step").
 
 Each step: the drone has settled at a viewpoint and captures RGB-D at its actual simulated pose;
 the mapper adds and optimizes splats; the selector updates its state (reliability for 2D
@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from flightrecon import run_folder
 from flightrecon.active.diagnosis import mi_split, move_kind
 from flightrecon.active.protocol import Observation
 from flightrecon.active.registry import make_selector
@@ -39,28 +40,21 @@ from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import write_trajectory_csv
 from flightrecon.errors import DataError, FlightReconError
 from flightrecon.evaluation.coverage import SurfaceCoverage
-from flightrecon.evaluation.run_eval import SNAPSHOTS
-from flightrecon.evaluation.views import EvaluationSet
 from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
 from flightrecon.fileio import atomic_path, write_json, write_text
 from flightrecon.geometry import camera_pose_from_body, make_pose, rot_z
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.mapping.ply import save_map
-from flightrecon.planning.distance_field import DistanceField
 from flightrecon.planning.feasibility import CandidateResult, Planner
 from flightrecon.planning.paths import seed_ompl
-from flightrecon.planning.poses import start_position, workspace_of
-from flightrecon.recording import NullRecorder, open_recorder
-from flightrecon.scene.source import scene_from_config
-from flightrecon.sim.camera import RGBDCamera
+from flightrecon.recording import NullRecorder, Stage, open_recorder
+from flightrecon.rig import build_rig
 from flightrecon.sim.flight import Flight, FlightDiverged
 from flightrecon.sim.quadrotor import camera_offset
 from flightrecon.sim.safety import ClearanceMonitor
-from flightrecon.sim.world import build_world
 
 log = logging.getLogger(__name__)
 
-CHECKPOINT = "checkpoint.pkl"
 RELIABLE_EMA, RELIABLE_STOP = 0.95, 0.75
 DIAGNOSIS_SURFACE_SAMPLES = 200_000  # ground-truth surface samples of output.diagnose's coverage
 FRAME_COLUMNS = ("frame", "sim_time", "t_capture", "t_map", "t_select_update", "t_plan", "t_score",
@@ -85,14 +79,6 @@ class MissionState:
     diagnosis: list = field(default_factory=list)  # output.diagnose: one row per frame
 
 
-def flight_region(scene, cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(workspace box (2,3) for candidates, take-off point): the planner's workspace of the scene,
-    shrunk by the drone's required clearance, and the hover point above its spawn."""
-    pad = cfg.drone.body_radius + cfg.planner.safety_margin
-    work = workspace_of(scene, cfg.planner.max_height) + np.array([[pad], [-pad]])
-    return work, start_position(scene, cfg.sim.takeoff_height)
-
-
 class Mission:
     """One active-reconstruction flight; `run()` goes until the frame budget, checkpointing."""
 
@@ -100,25 +86,16 @@ class Mission:
         self.cfg = cfg
         self.run_dir = Path(run_dir)
         self.progress = progress
-        c = cfg.camera
-        self.scene = scene_from_config(cfg.scene)
-        self.world = build_world(self.scene, cfg)
-        self.camera = RGBDCamera(self.world, c.width, c.height, c.hfov_deg, c.near, c.far)
-        self.K = self.camera.K
-        self.workspace, self.start = flight_region(self.scene, cfg)
-        pad = cfg.drone.body_radius + cfg.planner.safety_margin + 0.2
-        self.truth = DistanceField.from_mesh(self.scene.trimesh, cfg.planner.voxel_size,
-                                             self.workspace + np.array([[-pad], [pad]]), signed=False)
-        self.flight = Flight.from_world(self.world, cfg, ClearanceMonitor(self.truth, cfg.drone.body_radius))
-        self.cam_offset = camera_offset(cfg.drone.arm_length)
-        self.planner = Planner(cfg, self.workspace, self.scene.trimesh, self.start)
-        self.mapper = OnlineMapper(cfg.mapper, near=c.near, far=c.far, seed=cfg.seed)
+        self.rig = rig = build_rig(cfg)
+        self.flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(rig.truth, cfg.drone.body_radius))
+        self.planner = Planner(cfg, rig.workspace, rig.scene.trimesh, rig.start)
+        self.mapper = OnlineMapper(cfg.mapper, near=cfg.camera.near, far=cfg.camera.far, seed=cfg.seed)
         self.selector = make_selector(cfg)
-        self.evaluation = EvaluationSet.for_mission(self.camera, self.start, self.truth, self.workspace, cfg)
+        self.evaluation = rig.evaluation_set()
         self.state = MissionState()
         if cfg.output.diagnose:
-            free = room_free_space(self.scene, self.start)
-            self.state.coverage = SurfaceCoverage(visible_surface(self.scene, free, DIAGNOSIS_SURFACE_SAMPLES).points)
+            free = room_free_space(rig.scene, rig.start)
+            self.state.coverage = SurfaceCoverage(visible_surface(rig.scene, free, DIAGNOSIS_SURFACE_SAMPLES).points)
         self.live_viewer = False  # `fly --rerun`: stream the recording to a viewer as well
         self.recorder = NullRecorder()
 
@@ -127,8 +104,8 @@ class Mission:
     def resume(cls, run_dir: str | Path, *, progress: bool = True) -> "Mission":
         """Rebuild the mission from run_dir/config.toml and restore its last checkpoint."""
         run_dir = Path(run_dir)
-        cfg_path = run_dir / "config.toml"
-        ckpt = run_dir / CHECKPOINT
+        cfg_path = run_dir / run_folder.CONFIG
+        ckpt = run_dir / run_folder.CHECKPOINT
         if not cfg_path.is_file():
             raise FlightReconError(f"cannot resume: {cfg_path} not found (is {run_dir} a run folder?)")
         mission = cls(load_config(cfg_path), run_dir, progress=progress)
@@ -140,11 +117,14 @@ class Mission:
         """Fly until the frame budget; returns the final metrics (also written to metrics.json)."""
         budget = self.cfg.budget.frames
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        write_text(self.run_dir / "config.toml", to_toml(self.cfg))
+        write_text(self.run_dir / run_folder.CONFIG, to_toml(self.cfg))
         if self.state.frame == 0:
             self._take_off()
         bar = _progress(budget, self.state.frame, self.progress)
-        self.recorder = open_recorder(self, live=self.live_viewer)
+        start = self.state.frame
+        self.recorder = open_recorder(self.cfg, self.run_dir, Stage(self.rig.scene, self.rig.workspace, self.rig.K),
+                                      frame=start, sim_time=self.flight.time, live=self.live_viewer,
+                                      takeoff=self.flight.log.columns() if start == 0 else None)
         while self.state.frame < budget:
             t0 = time.perf_counter()
             row = self._step(last=self.state.frame == budget - 1)
@@ -167,17 +147,17 @@ class Mission:
 
     # ------------------------------------------------------------------ one step
     def _take_off(self) -> None:
-        ground = self.start.copy()
-        ground[2] = self.start[2] - self.cfg.sim.takeoff_height + self.cfg.drone.body_radius * 0.5
+        ground = self.rig.start.copy()
+        ground[2] = self.rig.start[2] - self.cfg.sim.takeoff_height + self.cfg.drone.body_radius * 0.5
         self.flight.start(ground, 0.0)
-        self.flight.go_to(self.start, 0.0)
+        self.flight.go_to(self.rig.start, 0.0)
         self.flight.wait_until_arrived()
 
     def _step(self, last: bool) -> dict:
         cfg = self.cfg
         row: dict = {"frame": self.state.frame}
         t = time.perf_counter()
-        rgb, depth, T_wc, _ = self.flight.capture(self.camera)
+        rgb, depth, T_wc, _ = self.flight.capture(self.rig.camera)
         body = self.flight.state
         self.state.visited.append((body.position.copy(), float(body.yaw)))
         row["t_capture"] = time.perf_counter() - t
@@ -185,24 +165,24 @@ class Mission:
 
         t = time.perf_counter()
         with self._stage("mapping"):
-            self.mapper.add_frame(rgb, depth, self.K, T_wc)
+            self.mapper.add_frame(rgb, depth, self.rig.K, T_wc)
             self.mapper.map.check_finite()
         row["t_map"] = time.perf_counter() - t
         t = time.perf_counter()
         with self._stage("selector update"):
             # the one render of the map at the captured pose: selector update, frame quality, recording
-            obs = Observation(self.state.frame, rgb, depth, self.K, T_wc,
-                              self.mapper.render_capture(T_wc, self.K, depth.shape[1], depth.shape[0]))
+            obs = Observation(self.state.frame, rgb, depth, self.rig.K, T_wc,
+                              self.mapper.render_capture(T_wc, self.rig.K, depth.shape[1], depth.shape[0]))
             self.selector.observe(self.mapper, obs)
         row["t_select_update"] = time.perf_counter() - t
         row["reliable_share_ema"] = self._update_stopping()
         row["n_splats"] = len(self.mapper.map)
         with self._stage("frame quality"):
             row["frame_psnr"], row["frame_depth_l1_cm"] = self.evaluation.frame_quality(obs.view.output, rgb, depth)
-        self.recorder.capture(obs)
-        self.planner.integrate(depth, self.K, T_wc, body_position=body.position)
+        self.recorder.capture(self.state.frame, self.flight.time, obs, self.mapper.map, last)
+        self.planner.integrate(depth, self.rig.K, T_wc, body_position=body.position)
         if self.state.coverage is not None:
-            seen, overlap = self.state.coverage.add_frame(depth, self.K, T_wc)
+            seen, overlap = self.state.coverage.add_frame(depth, self.rig.K, T_wc)
             self.state.diagnosis.append({"frame": self.state.frame, "surface_seen": seen, "overlap": overlap})
 
         every = cfg.evaluation.every
@@ -211,7 +191,7 @@ class Mission:
                 q = self.evaluation.evaluate(self.mapper)
             row["eval_psnr"], row["eval_depth_l1_cm"] = q["psnr"], q["depth_l1_cm"]
             if cfg.evaluation.snapshots and not last:  # mesh metrics need a TSDF: `eval` scores them later
-                save_map(self.mapper.map, self.run_dir / SNAPSHOTS / f"map_{self.state.frame:05d}.ply",
+                save_map(self.mapper.map, run_folder.snapshot_path(self.run_dir, self.state.frame),
                          extras=cfg.output.ply_extras)
         if last:
             return row
@@ -332,9 +312,9 @@ class Mission:
         """Once per run: the drone has not moved and nothing around it is feasible, which is almost
         always a workspace that leaves it no room (an open scan, a wrong up axis or unit scale)."""
         self.state.told_no_room = True
-        lo, hi = (np.round(b, 2).tolist() for b in self.workspace)
+        lo, hi = (np.round(b, 2).tolist() for b in self.rig.workspace)
         text = (f"frame {self.state.frame}: the drone cannot leave its take-off point "
-                f"{np.round(self.start, 2).tolist()}: no candidate or recovery is feasible ({reasons}). "
+                f"{np.round(self.rig.start, 2).tolist()}: no candidate or recovery is feasible ({reasons}). "
                 f"Candidates must lie in the workspace {lo} .. {hi} (the scene's floor to its ceiling, or "
                 f"planner.max_height above the floor without one, shrunk by the clearance "
                 f"{self.planner.settings.required_clearance:.2f} m). Change planner.max_height, "
@@ -344,8 +324,8 @@ class Mission:
 
     def candidate_poses(self, results: list[CandidateResult]) -> np.ndarray:
         """Camera T_wc [C,4,4] the drone would have at each candidate (body at rest, level)."""
-        pitch = self.cfg.camera.pitch_deg
-        return np.stack([camera_pose_from_body(make_pose(rot_z(r.yaw), r.position), self.cam_offset, pitch)
+        pitch, offset = self.cfg.camera.pitch_deg, camera_offset(self.cfg.drone.arm_length)
+        return np.stack([camera_pose_from_body(make_pose(rot_z(r.yaw), r.position), offset, pitch)
                          for r in results])
 
     def _event(self, text: str, level: int = logging.INFO) -> None:
@@ -355,21 +335,21 @@ class Mission:
 
     # ------------------------------------------------------------------ outputs
     def _save_frame_outputs(self) -> None:
-        write_text(self.run_dir / "frames.csv", _csv_text(self.state.records, FRAME_COLUMNS))
-        write_text(self.run_dir / "events.log", "".join(e + "\n" for e in self.state.events))
+        write_text(self.run_dir / run_folder.FRAMES, _csv_text(self.state.records, FRAME_COLUMNS))
+        write_text(self.run_dir / run_folder.EVENTS, "".join(e + "\n" for e in self.state.events))
         if self.state.diagnosis:
             names = list(dict.fromkeys(k for r in self.state.diagnosis for k in r))
-            write_text(self.run_dir / "diagnosis.csv", _csv_text(self.state.diagnosis, names))
+            write_text(self.run_dir / run_folder.DIAGNOSIS, _csv_text(self.state.diagnosis, names))
 
     def _finish(self) -> dict:
-        save_map(self.mapper.map, self.run_dir / "map.ply", extras=self.cfg.output.ply_extras)
-        write_trajectory_csv(self.run_dir / "trajectory.csv", self.flight.log.columns())
+        save_map(self.mapper.map, self.run_dir / run_folder.MAP, extras=self.cfg.output.ply_extras)
+        write_trajectory_csv(self.run_dir / run_folder.TRAJECTORY, self.flight.log.columns())
         final = self.evaluation.evaluate(self.mapper)
         rec = self.state.records
         metrics = {
             "scenario": self.cfg.name, "method": self.cfg.selector.method, "seed": self.cfg.seed,
             "frames": len(rec), "splats": len(self.mapper.map), "splats_pruned": self.mapper.pruned,
-            "map_mb": (self.run_dir / "map.ply").stat().st_size / 1e6,
+            "map_mb": (self.run_dir / run_folder.MAP).stat().st_size / 1e6,
             "flight_distance_m": self.state.flight_distance, "sim_time_s": self.flight.time,
             "wall_time_s": self.state.wall_time, "contacts": len(self.flight.log.events),
             "recoveries": sum(1 for r in rec if r.get("recovery")),
@@ -378,14 +358,14 @@ class Mission:
                              for k in ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
                              if any(k in r for r in rec)},
         }
-        write_json(self.run_dir / "metrics.json", metrics)
+        write_json(self.run_dir / run_folder.METRICS, metrics)
         return metrics
 
     # ------------------------------------------------------------------ checkpoints
     def _save_checkpoint(self) -> None:
         payload = {"flight": self.flight.get_state(), "mapper": self.mapper, "planner": self.planner,
                    "selector": self.selector, "mission": self.state}
-        with atomic_path(self.run_dir / CHECKPOINT) as tmp:
+        with atomic_path(self.run_dir / run_folder.CHECKPOINT) as tmp:
             with open(tmp, "wb") as f:
                 pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
 

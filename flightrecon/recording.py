@@ -1,10 +1,10 @@
-"""Rerun timeline of a flight (design.md: researchers review flights in rerun).
+"""Rerun timeline of a flight: researchers review flights in rerun.
 
-`open_recorder(mission)` returns a `Recorder` that the closed loop calls at fixed points (capture,
-candidates, flight, events, end of frame); with recording off it returns `NullRecorder`, whose hooks
-do nothing, so `--no-record` costs one empty method call per hook. The recorder only reads the
-mission's state (it renders the map with no gradient and draws no random numbers from the mission's
-generators), so a flight is the same with and without it.
+`open_recorder(cfg, run_dir, stage, ...)` returns a `Recorder` that the closed loop calls at fixed
+points (capture, candidates, flight, events, end of frame) with what that step produced; with
+recording off it returns `NullRecorder`, whose hooks do nothing, so `--no-record` costs one empty
+method call per hook. The recorder only reads what it is handed (it renders nothing and draws no
+random numbers), so a flight is the same with and without it.
 
 Timelines: `frame` (capture index) and `sim_time` (simulated seconds). Entities:
   world/scene                     decimated ground-truth mesh (static)
@@ -46,6 +46,7 @@ import logging
 import math
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -54,8 +55,12 @@ import rerun as rr
 import rerun.blueprint as rrb
 import torch
 
+from flightrecon import run_folder
+from flightrecon.config import ScenarioConfig
+from flightrecon.scene.types import Scene
+
 APP_ID = "flightrecon"
-FIRST_SEGMENT = "recording.rrd"
+FIRST_SEGMENT = run_folder.RECORDING
 log = logging.getLogger(__name__)
 
 
@@ -84,10 +89,19 @@ def has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
+@dataclass(frozen=True)
+class Stage:
+    """The static part of the recording: the scene, the workspace box (2,3) and the camera K."""
+
+    scene: Scene
+    workspace: np.ndarray
+    K: np.ndarray
+
+
 class NullRecorder:
     """Recording off: every hook of `Recorder` does nothing."""
 
-    def capture(self, obs) -> None:
+    def capture(self, frame: int, sim_time: float, obs, gmap, last: bool) -> None:
         pass
 
     def candidates(self, results, feasible, scores, chosen) -> None:
@@ -106,20 +120,25 @@ class NullRecorder:
         pass
 
 
-def open_recorder(mission, live: bool = False) -> "Recorder | NullRecorder":
-    """The recorder for `mission.run()`: a file segment (output.record) and/or a live viewer."""
-    out = mission.cfg.output
+def open_recorder(cfg: ScenarioConfig, run_dir: Path, stage: Stage | None = None, *, frame: int = 0,
+                  sim_time: float = 0.0, takeoff: dict | None = None,
+                  live: bool = False) -> "Recorder | NullRecorder":
+    """The recorder of a flight in `run_dir` starting at `frame` and `sim_time` (the take-off's
+    flight-log columns when it starts at the beginning): a file segment (output.record) and/or a
+    live viewer. `stage` is needed only when something is recorded."""
+    out = cfg.output
     if not out.record and not live:
         return NullRecorder()
-    stream = rr.RecordingStream(APP_ID, recording_id=recording_id(mission.run_dir))
+    run_dir = Path(run_dir)
+    stream = rr.RecordingStream(APP_ID, recording_id=recording_id(run_dir))
     sinks = []
     if out.record:
-        mission.run_dir.mkdir(parents=True, exist_ok=True)
-        sinks.append(rr.FileSink(str(_next_segment(mission.run_dir))))
+        run_dir.mkdir(parents=True, exist_ok=True)
+        sinks.append(rr.FileSink(str(_next_segment(run_dir))))
     if live:
-        sinks.append(_live_sink(out.viewer_port, out.web_port, mission.run_dir))
+        sinks.append(_live_sink(out.viewer_port, out.web_port, run_dir))
     stream.set_sinks(*sinks)
-    return Recorder(mission, stream)
+    return Recorder(cfg, stage, stream, frame, sim_time, takeoff)
 
 
 def _live_sink(grpc_port: int, web_port: int, run_dir: Path):
@@ -139,53 +158,57 @@ def web_viewer_address(web_port: int, grpc_port: int, host: str = "127.0.0.1") -
 
 
 class Recorder:
-    """Logs one mission to a rerun stream; the hooks mirror the loop's steps."""
+    """Logs one flight to a rerun stream; the hooks mirror the loop's steps and receive what each
+    step produced."""
 
-    def __init__(self, mission, stream: rr.RecordingStream) -> None:
-        self.m = mission
+    def __init__(self, cfg: ScenarioConfig, stage: Stage, stream: rr.RecordingStream, frame: int,
+                 sim_time: float, takeoff: dict | None) -> None:
+        self.cfg = cfg
         self.rec = stream
-        self.out = mission.cfg.output
+        self.out = cfg.output
         self.reasons: dict[str, int] = {}
-        self.capture_time = mission.flight.time
+        self.frame = frame
+        self.capture_time = sim_time
         self._handler = _WarningsToEvents(self)
         logging.getLogger("flightrecon").addHandler(self._handler)
-        self.rec.send_blueprint(default_blueprint(mission.workspace))
-        self._static()
-        if mission.state.frame == 0 and len(mission.flight.log):
-            self._poses(mission.flight.log.columns(), 0)  # the take-off
+        self.rec.send_blueprint(default_blueprint(stage.workspace))
+        self._static(stage)
+        if takeoff is not None and len(takeoff["t"]):
+            self._poses(takeoff, 0)
         self._at_frame()
-        self.rec.log("events", rr.TextLog(f"recording from frame {mission.state.frame} at sim time "
-                                          f"{mission.flight.time:.2f} s", level=rr.TextLogLevel.INFO))
+        self.rec.log("events", rr.TextLog(f"recording from frame {frame} at sim time {sim_time:.2f} s",
+                                          level=rr.TextLogLevel.INFO))
 
     # ---------------------------------------------------------------- static scene
-    def _static(self) -> None:
-        m, rec = self.m, self.rec
+    def _static(self, stage: Stage) -> None:
+        rec = self.rec
         rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        v, f, c = decimate_mesh(m.scene, self.out.record_mesh_cell)
+        v, f, c = decimate_mesh(stage.scene, self.out.record_mesh_cell)
         rec.log("world/scene", rr.Mesh3D(vertex_positions=v, triangle_indices=f, vertex_colors=c), static=True)
-        lo, hi = m.workspace
+        lo, hi = stage.workspace
         rec.log("world/workspace", rr.Boxes3D(mins=[lo], sizes=[hi - lo], colors=[(120, 120, 120)]), static=True)
-        arm = m.cfg.drone.arm_length
+        arm = self.cfg.drone.arm_length
         tips = arm / math.sqrt(2) * np.array([[1, 1, 0], [-1, -1, 0], [1, -1, 0], [-1, 1, 0]], np.float32)
         rec.log("world/drone/body", rr.LineStrips3D([tips[:2], tips[2:]], radii=0.01, colors=[(30, 30, 30)]),
                 static=True)
         rec.log("world/drone/rotors", rr.Cylinders3D(lengths=[0.02] * 4, radii=[0.35 * arm] * 4, centers=tips,
                                                      colors=[(220, 60, 60), (220, 60, 60), (60, 60, 220),
                                                              (60, 60, 220)]), static=True)
-        c = m.cfg.camera
-        rec.log("world/camera", rr.Pinhole(image_from_camera=m.K, width=c.width, height=c.height,
+        c = self.cfg.camera
+        rec.log("world/camera", rr.Pinhole(image_from_camera=stage.K, width=c.width, height=c.height,
                                            camera_xyz=rr.ViewCoordinates.RDF, image_plane_distance=0.3),
                 static=True)
 
     # ---------------------------------------------------------------- hooks
     def _at_frame(self, sim_time: float | None = None) -> None:
-        self.rec.set_time("frame", sequence=self.m.state.frame)
+        self.rec.set_time("frame", sequence=self.frame)
         self.rec.set_time("sim_time", duration=self.capture_time if sim_time is None else sim_time)
 
-    def capture(self, obs) -> None:
-        """Captured images, pose, the map rendered at the pose, and (every k frames) the map."""
-        m, rec = self.m, self.rec
-        self.capture_time = m.flight.time
+    def capture(self, frame: int, sim_time: float, obs, gmap, last: bool) -> None:
+        """Capture `frame` at `sim_time`: its images and pose, the map rendered at the pose (obs.view),
+        and every record_map_every frames and at the `last` the map `gmap` (a GaussianMap)."""
+        rec = self.rec
+        self.frame, self.capture_time = frame, sim_time
         self._at_frame()
         rec.log("world/camera", rr.Transform3D(translation=obs.T_wc[:3, 3], mat3x3=obs.T_wc[:3, :3]))
         q = self.out.record_jpeg_quality
@@ -196,12 +219,10 @@ class Recorder:
         rec.log("rendered/color", rr.Image(_to_u8(color.clip(0, 1))).compress(jpeg_quality=q))
         rec.log("rendered/depth", _depth_png(depth[..., 0]))
         rec.log("rendered/normal", rr.Image(_to_u8(0.5 + 0.5 * normal)).compress(jpeg_quality=q))
-        last = m.state.frame == m.cfg.budget.frames - 1
-        if m.state.frame % self.out.record_map_every == 0 or last:
-            self._map()
+        if frame % self.out.record_map_every == 0 or last:
+            self._map(gmap)
 
-    def _map(self) -> None:
-        g = self.m.mapper.map
+    def _map(self, g) -> None:
         n = len(g)
         if n == 0:
             return
@@ -231,7 +252,7 @@ class Recorder:
         counts: dict[str, int] = {}
         for r in bad:
             counts[r.reason] = counts.get(r.reason, 0) + 1
-        rec.log("events", rr.TextLog(f"frame {self.m.state.frame}: {len(feasible)} of {len(results)} candidates "
+        rec.log("events", rr.TextLog(f"frame {self.frame}: {len(feasible)} of {len(results)} candidates "
                                      f"feasible; infeasible by reason {counts}", level=rr.TextLogLevel.DEBUG))
         if bad:
             new = sorted({r.reason for r in bad} - set(self.reasons))
@@ -273,9 +294,9 @@ class Recorder:
         if not len(flown):
             return
         cols = flown.columns()
-        path, clear = self._poses(cols, self.m.state.frame + 1)
+        path, clear = self._poses(cols, self.frame + 1)
         self._at_frame()
-        near = np.nan_to_num(clear, nan=np.inf) < self.m.cfg.planner.safety_margin + self.m.cfg.drone.body_radius
+        near = np.nan_to_num(clear, nan=np.inf) < self.cfg.required_clearance
         colors = np.where(near[:, None], np.array([230, 60, 40]), np.array([40, 180, 60])).astype(np.uint8)
         flown_s = float(cols["t"][-1] - cols["t"][0])
         label = f"flown {flown_s:.1f} s" + ("" if chosen is None else f" (planned {chosen.duration:.1f} s)")
@@ -288,7 +309,7 @@ class Recorder:
         """Body pose and clearance at `record_pose_rate_hz` of sim time; on the frame timeline they
         belong to `frame`, the capture the flight leads to, so frame k shows the drone at capture k."""
         n = len(cols["t"])
-        step = max(1, int(round(self.m.cfg.sim.control_rate_hz / self.out.record_pose_rate_hz)))
+        step = max(1, int(round(self.cfg.sim.control_rate_hz / self.out.record_pose_rate_hz)))
         sel = np.unique(np.r_[np.arange(0, n, step), n - 1])
         pos = np.stack([cols["x"], cols["y"], cols["z"]], 1)[sel]
         quat = np.stack([cols["qx"], cols["qy"], cols["qz"], cols["qw"]], 1)[sel]

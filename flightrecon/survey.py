@@ -30,6 +30,7 @@ from flightrecon.dataset import DatasetWriter
 from flightrecon.errors import DataError, SceneError
 from flightrecon.fileio import write_text
 from flightrecon.planning.distance_field import DistanceField
+from flightrecon.rig import build_rig, takeoff_point
 from flightrecon.scene.types import Scene
 
 N_RAYS = 8
@@ -46,18 +47,9 @@ class Waypoint:
     yaws: tuple[float, ...]  # headings of the captures taken here
 
 
-def takeoff_point(scene: Scene, cfg: ScenarioConfig) -> np.ndarray:
-    """Point above the spawn spot (or the room's center) at the take-off height."""
-    b = scene.bounds
-    spawn = scene.meta.get("spawn")
-    floor = float(scene.meta.get("floor_z", b[0, 2]))
-    xy = np.asarray(spawn, float)[:2] if spawn is not None else 0.5 * (b[0, :2] + b[1, :2])
-    return np.array([xy[0], xy[1], floor + cfg.sim.takeoff_height])
-
-
 def scene_distance_field(scene: Scene, cfg: ScenarioConfig, free_point: np.ndarray) -> DistanceField:
     """Ground-truth field of the room; voxels not connected to `free_point` are solid."""
-    pad = cfg.drone.body_radius + cfg.planner.safety_margin + 2 * cfg.planner.voxel_size
+    pad = cfg.required_clearance + 2 * cfg.planner.voxel_size
     bounds = scene.bounds + np.array([[-pad], [pad]])
     return DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size, bounds,
                                    free_seeds=np.asarray(free_point, float)[None], signed=False)
@@ -73,7 +65,7 @@ def survey_waypoints(scene: Scene, cfg: ScenarioConfig, field: DistanceField,
                      headings: int = HEADINGS) -> list[Waypoint]:
     """The loop of capture points (see the module doc), starting and ending near the center."""
     center = takeoff_point(scene, cfg)
-    required = cfg.drone.body_radius + cfg.planner.safety_margin
+    required = cfg.required_clearance
     if field.distance(center[None])[0] < required:
         raise SceneError(f"scene '{scene.name}': the take-off point {np.round(center, 2).tolist()} has less than "
                          f"{required:.2f} m clearance (drone.body_radius + planner.safety_margin)")
@@ -121,23 +113,18 @@ class SurveyResult:
 def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str], None] = print,
                headings: int = HEADINGS) -> SurveyResult:
     """Fly the survey in `cfg`'s scene and write the dataset to `out_dir` (`headings` captures per waypoint)."""
-    from flightrecon.scene.source import scene_from_config
-    from flightrecon.sim.camera import RGBDCamera
     from flightrecon.sim.flight import Flight
     from flightrecon.sim.safety import ClearanceMonitor
-    from flightrecon.sim.world import build_world
 
     out_dir = Path(out_dir)
-    scene = scene_from_config(cfg.scene)
-    progress(f"scene {scene.name}: {len(scene.faces)} triangles; building the world and distance field")
-    world = build_world(scene, cfg)
-    center = takeoff_point(scene, cfg)
+    progress(f"scene {cfg.scene.name}: building the world and distance field")
+    rig = build_rig(cfg, truth=False)
+    scene, camera, center = rig.scene, rig.camera, rig.start
     field = scene_distance_field(scene, cfg, center)
     route = survey_waypoints(scene, cfg, field, headings)
     n_frames = sum(len(w.yaws) for w in route)
     c = cfg.camera
-    camera = RGBDCamera(world, c.width, c.height, c.hfov_deg, c.near, c.far)
-    flight = Flight.from_world(world, cfg, ClearanceMonitor(field, cfg.drone.body_radius))
+    flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(field, cfg.drone.body_radius))
     writer = DatasetWriter(out_dir, camera.K, c.width, c.height)
     start = center.copy()
     start[2] = float(scene.meta.get("floor_z", scene.bounds[0, 2])) + START_ABOVE_FLOOR + 0.03

@@ -16,8 +16,7 @@ from flightrecon.config import load_config
 from flightrecon.evaluation.intervals import mean_interval, paired_difference
 from flightrecon.evaluation.views import HEADING_SECTORS, evaluation_poses, grid_size, view_metrics
 from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
-from flightrecon.mission import flight_region
-from flightrecon.planning.distance_field import DistanceField
+from flightrecon.rig import flight_region, truth_field
 from flightrecon.scene.source import procedural_scene
 from flightrecon.scene.types import Scene
 
@@ -27,8 +26,7 @@ def room0():
     cfg = load_config("sweep_cpu", ["scene.name=room0"])
     scene = procedural_scene("room0", 0)
     workspace, start = flight_region(scene, cfg)
-    truth = DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size, workspace + np.array([[-0.6], [0.6]]),
-                                    signed=False)
+    truth = truth_field(scene, cfg, workspace)
     return cfg, scene, workspace, start, truth
 
 

@@ -61,11 +61,11 @@ def test_frontier_pixels_count_the_rays_that_reach_unknown_space():
 
 def _wall_observation(cfg, mission):
     """The tiny demo mission's first captured frame, mapped, as the selector sees it."""
-    rgb, depth, T_wc, _ = mission.flight.capture(mission.camera)
-    mission.mapper.add_frame(rgb, depth, mission.K, T_wc)
+    rgb, depth, T_wc, _ = mission.flight.capture(mission.rig.camera)
+    mission.mapper.add_frame(rgb, depth, mission.rig.K, T_wc)
     from flightrecon.active.protocol import Observation
 
-    return Observation(0, rgb, depth, mission.K, T_wc)
+    return Observation(0, rgb, depth, mission.rig.K, T_wc)
 
 
 def test_explore_score_is_the_papers_mi_plus_the_frontier_gain(tmp_path):

@@ -165,7 +165,7 @@ def test_flying_into_a_real_scene_records_a_contact_on_its_surface():
 
     from flightrecon.scene.source import scene_from_config
     from flightrecon.sim.world import build_world
-    from flightrecon.survey import takeoff_point
+    from flightrecon.rig import takeoff_point
 
     cfg = load_config("demo", ["camera.width=32", "camera.height=24"])
     scene = scene_from_config(cfg.scene)

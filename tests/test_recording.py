@@ -141,11 +141,7 @@ def test_resume_writes_a_second_segment_of_the_same_recording(flights):
 
 
 def test_no_record_config_gives_the_null_recorder(tmp_path):
-    class _M:  # open_recorder reads only the config and the run folder
-        cfg = load_config("demo", ["output.record=false"])
-        run_dir = tmp_path
-
-    assert isinstance(open_recorder(_M()), NullRecorder)
+    assert isinstance(open_recorder(load_config("demo", ["output.record=false"]), tmp_path), NullRecorder)
     assert list(tmp_path.iterdir()) == []
 
 

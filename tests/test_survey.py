@@ -12,7 +12,8 @@ from flightrecon.config import load_config
 from flightrecon.dataset import load_dataset
 from flightrecon.geometry import backproject_depth, rot_z
 from flightrecon.scene.source import scene_from_config
-from flightrecon.survey import scene_distance_field, survey_waypoints, takeoff_point
+from flightrecon.rig import takeoff_point
+from flightrecon.survey import scene_distance_field, survey_waypoints
 
 OVERRIDES = ["camera.width=64", "camera.height=48"]
 

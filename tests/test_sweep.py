@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from flightrecon.evaluation.report import collect, write_figures, write_tables
-from flightrecon.evaluation.sweep import execute, plan_runs, status
+from flightrecon.experiments.report import collect, write_figures, write_tables
+from flightrecon.experiments.sweep import execute, plan_runs, status
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
         "mapper.k_new=5", "mapper.k_replay=2", "budget.frames=3", "budget.initial_views=1",

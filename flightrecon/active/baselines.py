@@ -1,4 +1,4 @@
-"""The paper's baselines as view selectors (docs/baselines.md).
+"""The paper's baselines as view selectors (their papers and public code; docs/architecture.md, "Selectors").
 
 All of them share our online 2DGS mapper, our planner and our candidate library (the loop hands
 every selector the same feasible candidates), so a comparison isolates the selection criterion.
@@ -34,22 +34,15 @@ import math
 import numpy as np
 import torch
 
+from flightrecon.active.candidate_views import render_candidates
 from flightrecon.active.protocol import Observation, capture_view, ensure_column, float_tensor, scoring_intrinsics
 from flightrecon.active.reliability import observation_weights, splat_normals
 from flightrecon.config import ScenarioConfig
 from flightrecon.geometry import pixel_rays, yaw_of_camera
 from flightrecon.mapping.mapper import OnlineMapper
-from flightrecon.render import FisherDiag, render, render_fisher_diag
+from flightrecon.render import FisherDiag, render_fisher_diag
 
 EXPLORE_RANGE = 5.0  # m, ActiveGS's utility range
-
-
-def _render(splats: dict, features: torch.Tensor, viewmats: torch.Tensor, K: torch.Tensor, W: int, H: int,
-            mapper: OnlineMapper, outputs: tuple[str, ...], backend: str):
-    C = viewmats.shape[0]
-    return render(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"], features,
-                  viewmats, K[None].expand(C, 3, 3).contiguous(), W, H, near=mapper.near, far=mapper.far,
-                  outputs=outputs, backend=backend)
 
 
 class _Scoring:
@@ -133,15 +126,13 @@ class GaussMISelector(_Scoring):
             return torch.zeros(len(poses), dtype=torch.float64)
         sp = mapper.splats()
         logodds = ensure_column(mapper, self.COLUMN, (4,))
-        T = float_tensor(poses, dev)
-        scores = []
-        for s in range(0, len(T), 64):
-            Tc = T[s:s + 64]
-            g = gaussmi_gain(logodds, direction_weights(sp["means"], Tc[:, :3, 3]))[..., None]
-            out = _render(sp, g, torch.linalg.inv(Tc), self.K_score.to(dev), self.width, self.height, mapper,
-                          ("features",), self.cfg.mapper.backend)
-            scores.append(out.features[..., 0].double().sum(dim=(1, 2)))
-        return torch.cat(scores).cpu()
+        scores = torch.zeros(len(poses), dtype=torch.float64)
+        gain = lambda Tc: gaussmi_gain(logodds, direction_weights(sp["means"], Tc[:, :3, 3]))[..., None]  # noqa: E731
+        for cams, out in render_candidates(sp, gain, float_tensor(poses, dev), self.K_score.to(dev), self.width,
+                                           self.height, near=mapper.near, far=mapper.far,
+                                           backend=self.cfg.mapper.backend):
+            scores[cams] = out.features[..., 0].double().sum(dim=(1, 2)).cpu()
+        return scores
 
     def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         raw = self.view_scores(mapper, poses).numpy()
@@ -338,14 +329,13 @@ class ActiveGSSelector(_Scoring):
             dev = mapper.device
             sp = mapper.splats()
             conf = self.confidence(mapper)[:, None]
-            T = float_tensor(poses, dev)
-            for s in range(0, len(T), 64):
-                out = _render(sp, conf, torch.linalg.inv(T[s:s + 64]), self.K_score.to(dev), self.width,
-                              self.height, mapper, ("features", "alpha", "depth"), self.cfg.mapper.backend)
+            for cams, out in render_candidates(sp, conf, float_tensor(poses, dev), self.K_score.to(dev), self.width,
+                                               self.height, near=mapper.near, far=mapper.far,
+                                               outputs=("features", "alpha", "depth"), backend=self.cfg.mapper.backend):
                 D = out.depth[..., 0]
                 surface = (out.alpha[..., 0] > 0.5) & (D <= EXPLORE_RANGE)
                 C = torch.where(surface, out.features[..., 0].clamp(0, 1), torch.ones_like(D))
-                exploit[s:s + 64] = ((1 - C) * D / EXPLORE_RANGE).mean(dim=(1, 2)).double().cpu().numpy()
+                exploit[cams] = ((1 - C) * D / EXPLORE_RANGE).mean(dim=(1, 2)).double().cpu().numpy()
         return 1000.0 * explore + exploit
 
     def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:

@@ -21,8 +21,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from flightrecon.active.candidate_views import render_candidates
 from flightrecon.active.reliability import observation_weights, splat_normals
-from flightrecon.render import FeatureSums, render, sided_feature_sums
+from flightrecon.render import FeatureSums, sided_feature_sums
 from flightrecon.render.feature_sums import side_values
 
 _SIGMA_MIN = 0.0012
@@ -94,17 +95,15 @@ def can_still_win(first: FeatureSums, offset: torch.Tensor | None = None) -> tor
 def _score_with_depth_prior(splats, reliability, T_wc, K, width, height, *, w_min, near, far, chunk, backend,
                             weighted, one_sided) -> torch.Tensor:
     """The MI weighted per pixel by the depth-noise prior: needs the rendered depth, so full renders."""
-    C = T_wc.shape[0]
     normals = splat_normals(splats["quats"])
-    scores = []
-    for start in range(0, C, chunk):
-        poses = T_wc[start:start + chunk]
+
+    def gain(poses: torch.Tensor) -> torch.Tensor:
         w = observation_weights(splats["means"], normals, poses[:, :3, 3])
-        gain = information_gain(reliability, w.abs() if one_sided else w, w_min, weighted)[..., None]
-        n = poses.shape[0]
-        out = render(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"], gain,
-                     torch.linalg.inv(poses), K[None].expand(n, 3, 3).contiguous(), width, height,
-                     near=near, far=far, outputs=("features", "depth"), backend=backend)
+        return information_gain(reliability, w.abs() if one_sided else w, w_min, weighted)[..., None]
+
+    scores = torch.zeros(T_wc.shape[0], dtype=torch.float64)
+    for cams, out in render_candidates(splats, gain, T_wc, K, width, height, near=near, far=far,
+                                       outputs=("features", "depth"), backend=backend, chunk=chunk):
         img = out.features[..., 0] * depth_noise_prior(out.depth[..., 0])
-        scores.append(img.double().sum(dim=(1, 2)))
-    return torch.cat(scores)
+        scores[cams] = img.double().sum(dim=(1, 2)).cpu()
+    return scores

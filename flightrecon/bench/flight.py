@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> dict:
     from flightrecon.sim.camera import RGBDCamera
     from flightrecon.sim.flight import Flight
     from flightrecon.sim.world import build_world
-    from flightrecon.survey import takeoff_point
+    from flightrecon.rig import takeoff_point
 
     cfg = load_config(args.scenario, args.overrides)
     scene = scene_from_config(cfg.scene)

@@ -26,7 +26,7 @@ from flightrecon.render import render
 from flightrecon.render.extension import load
 
 MAPPING = ("features", "alpha", "depth", "normal", "distortion")
-CEILING_M_PER_CORE = 760.0  # design.md, Platform facts (an AVX-512 Xeon)
+CEILING_M_PER_CORE = 760.0  # docs/architecture.md, "Platform facts" (an AVX-512 Xeon)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

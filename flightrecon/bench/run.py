@@ -15,9 +15,10 @@ import statistics
 import time
 from pathlib import Path
 
+from flightrecon import run_folder
 from flightrecon.bench.common import report
 from flightrecon.config import load_config
-from flightrecon.mission import CHECKPOINT, Mission
+from flightrecon.mission import Mission
 
 STAGES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
 
@@ -38,7 +39,7 @@ def run(args: argparse.Namespace) -> dict:
     cfg = load_config(args.scenario, overrides)
     run_dir = Path(args.run_dir or Path(cfg.output.run_root) / "bench" / Path(args.scenario).stem)
     t0 = time.perf_counter()
-    if (run_dir / CHECKPOINT).is_file() and not (run_dir / "metrics.json").is_file():
+    if (run_dir / run_folder.CHECKPOINT).is_file() and not (run_dir / run_folder.METRICS).is_file():
         mission = Mission.resume(run_dir)
     else:
         mission = Mission(cfg, run_dir)

@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
         return _write_views(args)
     if not args.run_dirs:
         raise FlightReconError("eval needs RUN_DIR(s) or --views SCENARIO")
-    from flightrecon.evaluation.run_eval import evaluate_run
+    from flightrecon.experiments.run_eval import evaluate_run
 
     for d in args.run_dirs:
         m = evaluate_run(d, args.lpips_weights, args.overrides)
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_views(args: argparse.Namespace) -> int:
     from flightrecon.config import load_config
-    from flightrecon.evaluation.run_eval import evaluation_views_for
+    from flightrecon.experiments.run_eval import evaluation_views_for
     from flightrecon.evaluation.view_store import VIEWS_DIR, save_views, views_path
 
     base = load_config(args.views, args.overrides)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flightrecon import fileio
+from flightrecon import fileio, run_folder
 from flightrecon.config import load_config, to_toml
 from flightrecon.dataset import encode_color_png, encode_depth_png, load_dataset
 from flightrecon.errors import ConfigError
@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.scenario, args.overrides)
     ds = load_dataset(args.dataset)
     out = Path(args.out)
-    fileio.write_text(out / "config.toml", to_toml(cfg))
+    fileio.write_text(out / run_folder.CONFIG, to_toml(cfg))
     t_start = time.perf_counter()
 
     def progress(k: int, total: int, stats, seconds: float) -> None:
@@ -53,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
 
     result = train_on_dataset(ds, cfg, args.holdout, args.limit, on_frame=progress)
     mapper = result.mapper
-    save_map(mapper.map, out / "map.ply")
+    save_map(mapper.map, out / run_folder.MAP)
     if args.export_3dgs:
         save_map(mapper.map, out / "map_3dgs.ply", for_3dgs=True)
 
@@ -70,13 +70,13 @@ def run(args: argparse.Namespace) -> int:
     summary = {
         "dataset": str(Path(args.dataset).resolve()), "holdout": args.holdout,
         "frames_train": len(result.train), "frames_test": len(result.test), "splats": len(mapper.map),
-        "map_mb": (out / "map.ply").stat().st_size / 1e6,
+        "map_mb": (out / run_folder.MAP).stat().st_size / 1e6,
         "seconds_per_frame_mean": float(np.mean(result.seconds)) if result.seconds else 0.0,
         "seconds_total": time.perf_counter() - t_start,
         "test": {"mean": mean_metrics(views["test"]), "per_view": views["test"]},
         "train": {"mean": mean_metrics(views["train"]), "per_view": views["train"]},
     }
-    fileio.write_json(out / "metrics.json", summary)
+    fileio.write_json(out / run_folder.METRICS, summary)
     for split in ("test", "train"):
         mm = summary[split]["mean"]
         if mm:

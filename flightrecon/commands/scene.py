@@ -77,7 +77,6 @@ def _make(args) -> int:
 
 def _info(args) -> int:
     from flightrecon.config import load_config
-    from flightrecon.planning.feasibility import PlanningSettings
     from flightrecon.planning.poses import workspace_of
     from flightrecon.scene.stats import summary
 
@@ -86,7 +85,7 @@ def _info(args) -> int:
     cfg = load_config(None, [] if args.max_height is None else [f"planner.max_height={args.max_height}"])
     work = workspace_of(scene, cfg.planner.max_height)
     s["workspace_min"], s["workspace_max"] = ([round(float(x), 3) for x in b] for b in work)
-    s["required_clearance"] = PlanningSettings.from_config(cfg).required_clearance
+    s["required_clearance"] = cfg.required_clearance
     s["max_height"] = cfg.planner.max_height
     if args.json:
         print(json.dumps(s, indent=2))

@@ -2,7 +2,7 @@
 
 Runs every (scene, method, seed) of a scenario into <run_root>/<scenario>/<scene>/<method>/seed<k>/
 (finished runs are skipped, killed ones resumed from their checkpoint), evaluates each (rendering
-and mesh metrics, flightrecon.evaluation.run_eval), then writes the tables and figures to
+and mesh metrics, flightrecon.experiments.run_eval), then writes the tables and figures to
 <run_root>/<scenario>/report/ (or --report). All methods share our mapper, planner and candidate
 library, so the comparison isolates the selection criterion.
 """
@@ -35,8 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from flightrecon.errors import FlightReconError
-    from flightrecon.evaluation.report import collect, write_figures, write_tables
-    from flightrecon.evaluation.sweep import execute, plan_runs
+    from flightrecon.experiments.report import collect, write_figures, write_tables
+    from flightrecon.experiments.sweep import execute, plan_runs
 
     if args.seeds < 1 or args.jobs < 1:
         raise FlightReconError("sweep: --seeds and --jobs must be at least 1")

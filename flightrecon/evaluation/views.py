@@ -139,15 +139,18 @@ class EvaluationSet:
         depth = torch.from_numpy(np.stack([f[1] for f in frames]))[..., None]
         return cls(poses, rgb, depth, camera.K, camera.width, camera.height)
 
-    def evaluate(self, mapper) -> dict:
+    def rendered_views(self, renderer, outputs: tuple[str, ...] = ("features", "alpha", "depth")):
+        """For each view: (index, the renderer's output there, its clamped color, its `view_metrics`).
+        `renderer` has the mapper's `render_view(T_wc, K, width, height, outputs)`."""
+        for i, T in enumerate(self.poses):
+            out = renderer.render_view(T, self.K, self.width, self.height, outputs=outputs)
+            color = out.features[0].clamp(0, 1).cpu()
+            yield i, out, color, view_metrics(color, out.depth[0].cpu(), out.alpha[0].cpu(), self.rgb[i], self.depth[i])
+
+    def evaluate(self, renderer) -> dict:
         """Mean view metrics (`view_metrics`: PSNR dB, SSIM, depth L1 cm on valid ground truth, on all
         and on covered pixels, covered share) over the views."""
-        per_view = []
-        for i, T in enumerate(self.poses):
-            out = mapper.render_view(T, self.K, self.width, self.height, outputs=("features", "alpha", "depth"))
-            per_view.append(view_metrics(out.features[0].clamp(0, 1).cpu(), out.depth[0].cpu(), out.alpha[0].cpu(),
-                                         self.rgb[i], self.depth[i]))
-        return {**mean_metrics(per_view), "views": len(self.poses)}
+        return {**mean_metrics([m for *_, m in self.rendered_views(renderer)]), "views": len(self.poses)}
 
     @staticmethod
     def frame_quality(rendered, rgb: np.ndarray, depth: np.ndarray) -> tuple[float, float]:

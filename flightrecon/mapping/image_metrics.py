@@ -13,7 +13,7 @@ import functools
 import torch
 import torch.nn.functional as F
 
-from flightrecon.render.extension import load
+from flightrecon.render import load_extension
 
 _C1 = 0.01**2
 _C2 = 0.03**2
@@ -35,7 +35,7 @@ def _blur(x: torch.Tensor, sigma: float, radius: int) -> torch.Tensor:
     k = x.shape[0]
     g = _gauss_taps(sigma, radius, x.dtype).to(x.device)
     if x.device.type == "cpu" and not (torch.is_grad_enabled() and x.requires_grad):
-        return load().blur_valid(x.contiguous(), g)
+        return load_extension().blur_valid(x.contiguous(), g)
     x = F.conv2d(x[None], g.view(1, 1, 1, -1).expand(k, 1, 1, -1), groups=k)
     return F.conv2d(x, g.view(1, 1, -1, 1).expand(k, 1, -1, 1), groups=k)[0]
 

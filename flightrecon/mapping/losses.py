@@ -17,7 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from flightrecon.mapping.image_metrics import SSIMTarget
-from flightrecon.render.extension import load
+from flightrecon.render import load_extension
 
 ALPHA_MASK = 0.95
 
@@ -48,12 +48,12 @@ class _DepthNormalsCPU(torch.autograd.Function):
     @staticmethod
     def forward(ctx, depth, rays):
         ctx.save_for_backward(depth, rays)
-        return load().depth_normals(depth, rays)
+        return load_extension().depth_normals(depth, rays)
 
     @staticmethod
     def backward(ctx, grad):
         depth, rays = ctx.saved_tensors
-        return load().depth_normals_backward(depth, rays, grad.contiguous()), None
+        return load_extension().depth_normals_backward(depth, rays, grad.contiguous()), None
 
 
 @dataclass

@@ -30,8 +30,7 @@ from flightrecon.mapping.losses import FrameTarget, frame_target, training_loss
 from flightrecon.mapping.optimizer import SparseAdam
 from flightrecon.mapping.store import PARAM_SHAPES, GaussianMap
 from flightrecon.mapping.voxel_hash import reject_near, voxel_keys
-from flightrecon.render import RenderedView, render, render_view_with_sums
-from flightrecon.render.backend_cpu import candidate_rows
+from flightrecon.render import RenderedView, candidate_rows, render, render_view_with_sums
 
 log = logging.getLogger(__name__)
 
@@ -254,7 +253,3 @@ class OnlineMapper:
             self._rays[key] = torch.as_tensor(pixel_rays(W, H, K.double().numpy()), dtype=torch.float32,
                                               device=self.device)
         return self._rays[key]
-
-    def frame_bytes(self) -> int:
-        """Memory held by the replay frames."""
-        return sum(f.rgb.numel() + 2 * f.depth_mm.numel() for f in self.frames)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 
 from flightrecon.mapping.store import PARAM_SHAPES, GaussianMap
-from flightrecon.render import extension
+from flightrecon.render import load_extension
 
 
 class SparseAdam:
@@ -58,7 +58,7 @@ class SparseAdam:
         step counts of leaf row i are then the map's at rows[i]. lr 0 freezes a parameter."""
         trained = [name for name, p in leaves.items() if p.grad is not None and self.lrs.get(name, 0.0) > 0.0]
         if visible.device.type == "cpu":
-            extension.load().adam_step(
+            load_extension().adam_step(
                 [leaves[k].detach() for k in trained], [leaves[k].grad.contiguous() for k in trained],
                 [self.gmap[f"adam_m.{k}"] for k in trained], [self.gmap[f"adam_v.{k}"] for k in trained],
                 [self.lrs[k] for k in trained], self.gmap["adam_step"], visible.contiguous(),

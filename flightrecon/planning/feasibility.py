@@ -71,7 +71,7 @@ class PlanningSettings:
         p, d = cfg.planner, cfg.drone
         limits = Limits(p.max_vel, p.max_acc, p.max_jerk, math.radians(p.max_yaw_rate_deg),
                         math.radians(p.max_yaw_acc_deg), math.radians(p.max_yaw_jerk_deg))
-        return cls(limits, d.body_radius + p.safety_margin, d.body_radius, math.radians(d.max_tilt_deg),
+        return cls(limits, cfg.required_clearance, d.body_radius, math.radians(d.max_tilt_deg),
                    p.max_duration, p.ompl_time_limit, p.ompl_iterations)
 
 
@@ -248,7 +248,7 @@ class Planner:
         self.settings = PlanningSettings.from_config(cfg)
         self.library: ViewpointLibrary = load_library(cfg.planner.library)
         self.workspace = np.asarray(workspace, float)
-        pad = cfg.drone.body_radius + cfg.planner.safety_margin + 2 * cfg.planner.voxel_size
+        pad = cfg.required_clearance + 2 * cfg.planner.voxel_size
         self.map_bounds = self.workspace + np.array([[-pad], [pad]])
         self.times = PlanningTimes()
         seed_ompl(cfg.seed)

@@ -62,11 +62,6 @@ class JerkTrajectory:
         p, v, a, _ = self.evaluate(np.array([t]))
         return FlatState(p[0, :3].copy(), v[0, :3].copy(), a[0, :3].copy(), float(p[0, 3]), float(v[0, 3]))
 
-    @property
-    def end_position(self) -> np.ndarray:
-        return self.evaluate(np.array([self._duration]))[0][0]
-
-
 def _eval_phases(starts: list[np.ndarray], coeffs: list[np.ndarray], t: np.ndarray) -> np.ndarray:
     """(4 derivatives, T, 4 axes) of piecewise-cubic phases at sorted-or-not times `t`."""
     out = np.empty((4, len(t), 4))

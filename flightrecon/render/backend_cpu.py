@@ -1,4 +1,4 @@
-"""The `cpu` backend: the C++ kernel (csrc/rasterize.cpp) as a torch autograd function.
+"""The `cpu` backend: the C++ kernels (csrc/rasterize_*.cpp, one file per stage) as a torch autograd function.
 
 The kernel consumes world-frame splat axes (mean, U = s_u t_u, V = s_v t_v, unit normal n): the
 camera projection is linear in them, so the kernel's backward returns their gradients directly and

@@ -5,7 +5,7 @@ implements the same equations (and is tested against this module), the tests com
 with gsplat's own pure-torch 2DGS projection, and FisherRF's squared-gradient mode takes its
 Jacobians from here.
 
-Conventions (gsplat's, see the 2DGS section of spec/baselines.md):
+Conventions (gsplat's and 2DGS's; docs/architecture.md, "Rasterizer"):
 - A splat is (mean p, scaled tangents U = s_u t_u, V = s_v t_v, unit normal n = t_u x t_v).
 - Its ray transform M = K [U_c | V_c | p_c] (camera frame) maps (u, v, 1) to pixel-homogeneous
   (x w, y w, w); its rows are T_u, T_v, T_w.

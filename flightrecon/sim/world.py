@@ -52,11 +52,6 @@ class World:
     baked: BakedScene
     collision_geom_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
 
-    @property
-    def scene_geom_id(self) -> int:
-        return self.model.geom(SCENE_GEOM).id
-
-
 def bake_scene(scene: Scene, cache_dir: str = "", collision_voxel: float = 0.05) -> BakedScene:
     """Atlas + collision boxes for `scene`, from the cache when its content was baked before."""
     key = f"{scene_hash(scene)}-p{collision_voxel:g}-v{BAKE_VERSION}"

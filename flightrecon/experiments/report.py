@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from flightrecon import run_folder
 from flightrecon.evaluation.intervals import mean_interval, paired_difference
-from flightrecon.evaluation.run_eval import OVER_FRAMES
 from flightrecon.fileio import atomic_path, write_text
 
 OVERALL = [("psnr", "PSNR", "up", 2), ("psnr_covered", "PSNR cov.", "up", 2), ("covered_share", "Covered", "up", 3),
@@ -59,11 +59,11 @@ def collect(run_dirs: list[Path]) -> list[dict]:
     recs = []
     for d in run_dirs:
         d = Path(d)
-        if not (d / "eval.json").is_file():
+        if not (d / run_folder.EVAL).is_file():
             continue
-        ev = json.loads((d / "eval.json").read_text())
-        met = json.loads((d / "metrics.json").read_text())
-        rows = _read_frames(d / "frames.csv")
+        ev = json.loads((d / run_folder.EVAL).read_text())
+        met = json.loads((d / run_folder.METRICS).read_text())
+        rows = _read_frames(d / run_folder.FRAMES)
         scored = [(_num(r["t_score"]), _num(r["n_feasible"])) for r in rows if _num(r.get("n_feasible")) > 1]
         n_cand = sum(n for _, n in scored)
         series = {k: np.array([_num(r.get(k)) for r in rows]) for k in
@@ -83,7 +83,7 @@ def _accuracy_series(run_dir: Path, n_frames: int, final: dict) -> np.ndarray:
     """Mesh accuracy (cm) per frame: the in-flight snapshots' (eval_over_frames.csv), the final map's
     at the last frame, NaN elsewhere."""
     acc = np.full(n_frames, math.nan)
-    path = run_dir / OVER_FRAMES
+    path = run_dir / run_folder.OVER_FRAMES
     if path.is_file():
         for r in _read_frames(path):
             if int(r["frame"]) < n_frames:
@@ -258,8 +258,8 @@ def _novel_view_grid(recs: list[dict], methods: list[str], path: Path, plt) -> P
     rows = []
     for m in methods:
         mine = sorted((r for r in recs if r["method"] == m and r["scene"] == scene), key=lambda r: r["seed"])
-        if mine and (mine[0]["dir"] / "novel_view.npz").is_file():
-            rows.append((m, dict(np.load(mine[0]["dir"] / "novel_view.npz"))))
+        if mine and (mine[0]["dir"] / run_folder.NOVEL_VIEW).is_file():
+            rows.append((m, dict(np.load(mine[0]["dir"] / run_folder.NOVEL_VIEW))))
     fig, axes = plt.subplots(len(rows) + 1, 3, figsize=(9, 2.4 * (len(rows) + 1)), squeeze=False)
     if rows:
         gt = rows[0][1]

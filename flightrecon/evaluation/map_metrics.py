@@ -1,11 +1,5 @@
-"""Full evaluation of a finished run folder: rendering metrics, mesh metrics, model size.
-
-Reads the run's config.toml and map.ply, rebuilds the scene's fixed evaluation views (the same
-views the loop scored during the flight, flightrecon.evaluation.views), and writes
-`eval.json`, `mesh.ply` (the TSDF mesh of the map) and `novel_view.npz` (the first evaluation
-view's ground truth and renders, for the sweep's figures) into the run folder, and
-`eval_over_frames.csv`: the same metrics for the map snapshots the flight saved at each in-flight
-evaluation (`evaluation.every`), so mesh accuracy can be plotted over collected frames.
+"""The metrics of a map against a scene's ground truth: rendering metrics on the evaluation views
+(with normal error and LPIPS) and mesh metrics of the map's TSDF fusion.
 
 The mesh is fused (flightrecon.evaluation.tsdf) from the map's rendered depth (expected depth where
 the rendered opacity exceeds 0.5) at a fixed dense set of views, the same for every method: six
@@ -18,29 +12,20 @@ whole room; every point of the fused mesh counts for accuracy.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
 import trimesh
 
-from flightrecon.config import ScenarioConfig, load_config
-from flightrecon.errors import FlightReconError
+from flightrecon.config import ScenarioConfig
 from flightrecon.evaluation.lpips_metric import LpipsMetric
 from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface
 from flightrecon.evaluation.tsdf import fuse_depth_maps
-from flightrecon.evaluation.views import EvaluationSet, grid_size, mean_metrics, view_metrics
-from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
-from flightrecon.fileio import atomic_path, write_json, write_text
-from flightrecon.geometry import camera_pose, intrinsics, pixel_rays
+from flightrecon.evaluation.views import EvaluationSet, mean_metrics
+from flightrecon.geometry import camera_pose, pixel_rays
 from flightrecon.mapping.losses import normals_from_depth
-from flightrecon.mapping.ply import load_map
 from flightrecon.mapping.store import GaussianMap
 from flightrecon.render import render
-
-SNAPSHOTS = "snapshots"  # map_<frame>.ply saved by the flight at each in-flight evaluation
-OVER_FRAMES = "eval_over_frames.csv"
-OVER_FRAMES_KEYS = ("psnr", "depth_l1_cm", "accuracy_cm", "completion_cm", "chamfer_cm", "fscore")
 
 SURFACE_ALPHA = 0.5  # rendered opacity above which a pixel's depth enters the TSDF
 
@@ -86,42 +71,6 @@ def fusion_poses(views: np.ndarray, positions: int) -> np.ndarray:
     return np.stack([camera_pose(T[:3, 3], yaw, pitch) for T in views[:positions] for yaw, pitch in faces])
 
 
-def _scene_setup(cfg: ScenarioConfig):
-    """(scene, camera, workspace, take-off point, ground-truth distance field) as the loop builds them."""
-    from flightrecon.mission import flight_region
-    from flightrecon.planning.distance_field import DistanceField
-    from flightrecon.scene.source import scene_from_config
-    from flightrecon.sim.camera import RGBDCamera
-    from flightrecon.sim.world import build_world
-
-    c = cfg.camera
-    scene = scene_from_config(cfg.scene)
-    camera = RGBDCamera(build_world(scene, cfg), c.width, c.height, c.hfov_deg, c.near, c.far)
-    workspace, start = flight_region(scene, cfg)
-    pad = cfg.drone.body_radius + cfg.planner.safety_margin + 0.2
-    truth = DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size,
-                                    workspace + np.array([[-pad], [pad]]), signed=False)
-    return scene, camera, workspace, start, truth
-
-
-def evaluation_views_for(cfg: ScenarioConfig) -> EvaluationSet:
-    """The scene's evaluation views with their ground truth, as the loop builds them."""
-    _, camera, workspace, start, truth = _scene_setup(cfg)
-    return EvaluationSet.for_mission(camera, start, truth, workspace, cfg)
-
-
-def evaluation_truth_for(cfg: ScenarioConfig) -> EvaluationTruth:
-    """The evaluation views with ground truth, the fusion views and the visible ground-truth surface."""
-    scene, camera, workspace, start, truth = _scene_setup(cfg)
-    free = room_free_space(scene, start)
-    views = EvaluationSet.for_mission(camera, start, truth, workspace, cfg, free)
-    visible = visible_surface(scene, free, cfg.metrics.sample_points)
-    size = cfg.camera.height
-    return EvaluationTruth(views, fusion_poses(views.poses, grid_size(len(views.poses)) ** 2),
-                           intrinsics(size, size, 90.0), size, visible.points,
-                           visible.visible_area_m2, visible.total_area_m2)
-
-
 def normal_angle_error_deg(normal: torch.Tensor, depth_gt: torch.Tensor, K: np.ndarray) -> float:
     """Mean angle (degrees) between rendered camera-frame normals [H,W,3] and the normals of the
     ground-truth depth [H,W,1], over pixels where both exist."""
@@ -149,10 +98,8 @@ def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, truth: EvaluationTruth,
     ev = truth.views
     per_view, na, lp = [], [], []
     first: dict = {}
-    for i, T in enumerate(ev.poses):
-        out = r.render_view(T, ev.K, ev.width, ev.height, outputs=("features", "alpha", "depth", "normal"))
-        color = out.features[0].clamp(0, 1)
-        per_view.append(view_metrics(color, out.depth[0], out.alpha[0], ev.rgb[i], ev.depth[i]))
+    for i, out, color, metrics in ev.rendered_views(r, ("features", "alpha", "depth", "normal")):
+        per_view.append(metrics)
         na.append(normal_angle_error_deg(out.normal[0], ev.depth[i], ev.K))
         if lpips is not None and lpips.available:
             lp.append(lpips(color, ev.rgb[i]))
@@ -184,34 +131,3 @@ def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, truth: EvaluationTruth,
         "views": int(len(ev.poses)), "fusion_views": int(len(truth.fusion_poses)),
     }
     return metrics, first, trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
-
-
-def evaluate_run(run_dir: str | Path, lpips_weights: str | None = None, overrides: list[str] | tuple = ()) -> dict:
-    """Evaluate `run_dir` (a finished flight), write eval.json, mesh.ply, novel_view.npz; return
-    metrics. `overrides` (e.g. `evaluation.views=64`) change how it is scored, not the run."""
-    run_dir = Path(run_dir)
-    if not (run_dir / "map.ply").is_file():
-        raise FlightReconError(f"{run_dir} has no map.ply: is the run finished?")
-    cfg = load_config(run_dir / "config.toml", overrides)
-    truth = evaluation_truth_for(cfg)
-    lpips = LpipsMetric(lpips_weights if lpips_weights is not None else cfg.metrics.lpips_weights)
-    metrics, first, mesh = evaluate_map(load_map(run_dir / "map.ply"), cfg, truth, lpips)
-    metrics["model_mb"] = (run_dir / "map.ply").stat().st_size / 1e6
-    with atomic_path(run_dir / "mesh.ply") as tmp:
-        mesh.export(str(tmp), file_type="ply")
-    with atomic_path(run_dir / "novel_view.npz") as tmp:
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, **first)
-    _write_over_frames(run_dir, cfg, truth)
-    write_json(run_dir / "eval.json", metrics)
-    return metrics
-
-
-def _write_over_frames(run_dir: Path, cfg: ScenarioConfig, truth: EvaluationTruth) -> None:
-    """The metrics of OVER_FRAMES_KEYS (LPIPS, the costliest, is not among them) of the flight's map snapshots (mesh accuracy over collected frames for the report)."""
-    snaps = sorted((run_dir / SNAPSHOTS).glob("map_*.ply"))
-    rows = [",".join(("frame",) + OVER_FRAMES_KEYS)]
-    for snap in snaps:
-        m, _, _ = evaluate_map(load_map(snap), cfg, truth, None)
-        rows.append(",".join([snap.stem.split("_")[1]] + [f"{m[k]:.6g}" for k in OVER_FRAMES_KEYS]))
-    write_text(run_dir / OVER_FRAMES, "\n".join(rows) + "\n")

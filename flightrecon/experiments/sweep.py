@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 
+from flightrecon import run_folder
 from flightrecon.config import load_config
 from flightrecon.errors import FlightReconError
 from flightrecon.memory import keep_freed_memory
@@ -56,11 +57,11 @@ def plan_runs(scenario: str, scenes: list[str], methods: list[str], seeds: int, 
 
 def status(spec: RunSpec) -> str:
     d = spec.run_dir
-    if (d / "eval.json").is_file():
+    if (d / run_folder.EVAL).is_file():
         return "done"
-    if (d / "metrics.json").is_file() and (d / "map.ply").is_file():
+    if (d / run_folder.METRICS).is_file() and (d / run_folder.MAP).is_file():
         return "evaluate"
-    if (d / "checkpoint.pkl").is_file():
+    if (d / run_folder.CHECKPOINT).is_file():
         return "resume"
     return "new"
 
@@ -75,7 +76,7 @@ def run_one(spec: RunSpec, threads: int = 0) -> tuple[str, str]:
         import torch
 
         torch.set_num_threads(threads)
-    from flightrecon.evaluation.run_eval import evaluate_run
+    from flightrecon.experiments.run_eval import evaluate_run
     from flightrecon.mission import Mission
 
     state = status(spec)

@@ -1,0 +1,77 @@
+"""What a flight stands on, built in one place: the scene, its MuJoCo world and RGB-D camera, the
+flight workspace, the take-off point, the ground-truth distance field and the evaluation views.
+
+The closed loop (mission), the evaluation of finished runs and the survey all build it here, so a
+change to how a scene is set up (a pad, the take-off rule) reaches every one of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from flightrecon.config import ScenarioConfig
+from flightrecon.evaluation.views import EvaluationSet
+from flightrecon.evaluation.visible_surface import FreeSpace
+from flightrecon.planning.distance_field import DistanceField
+from flightrecon.planning.poses import start_position, workspace_of
+from flightrecon.scene.source import scene_from_config
+from flightrecon.scene.types import Scene
+from flightrecon.sim.camera import RGBDCamera
+from flightrecon.sim.world import World, build_world
+
+TRUTH_PAD = 0.2  # m: the ground-truth field reaches this far beyond the workspace and the clearance
+
+
+def takeoff_point(scene: Scene, cfg: ScenarioConfig) -> np.ndarray:
+    """The hover point sim.takeoff_height above the scene's spawn (or its floor's center)."""
+    return start_position(scene, cfg.sim.takeoff_height)
+
+
+def flight_region(scene: Scene, cfg: ScenarioConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(workspace box (2,3) for candidates, take-off point): the planner's workspace of the scene,
+    shrunk by the drone's required clearance, and the hover point above its spawn."""
+    pad = cfg.required_clearance
+    work = workspace_of(scene, cfg.planner.max_height) + np.array([[pad], [-pad]])
+    return work, takeoff_point(scene, cfg)
+
+
+def truth_field(scene: Scene, cfg: ScenarioConfig, workspace: np.ndarray) -> DistanceField:
+    """Unsigned distance to the scene's mesh over the workspace and its margin (the clearance monitor's
+    and the evaluation views' ground truth)."""
+    pad = cfg.required_clearance + TRUTH_PAD
+    return DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size, workspace + np.array([[-pad], [pad]]),
+                                   signed=False)
+
+
+@dataclass
+class Rig:
+    """The scene set up for flying: what the loop, the evaluation and the survey share."""
+
+    cfg: ScenarioConfig
+    scene: Scene
+    world: World
+    camera: RGBDCamera
+    workspace: np.ndarray  # (2,3): the box candidate viewpoints lie in
+    start: np.ndarray  # the take-off (hover) point
+    truth: DistanceField | None  # None when built with truth=False
+
+    @property
+    def K(self) -> np.ndarray:
+        return self.camera.K
+
+    def evaluation_set(self, free: FreeSpace | None = None) -> EvaluationSet:
+        """The scene's fixed evaluation views with their ground truth (`free`: the room's free space,
+        if the caller has it already)."""
+        return EvaluationSet.for_mission(self.camera, self.start, self.truth, self.workspace, self.cfg, free)
+
+
+def build_rig(cfg: ScenarioConfig, *, truth: bool = True) -> Rig:
+    """Scene, world, camera, workspace, take-off point and (unless truth=False) the truth field of `cfg`."""
+    c = cfg.camera
+    scene = scene_from_config(cfg.scene)
+    world = build_world(scene, cfg)
+    camera = RGBDCamera(world, c.width, c.height, c.hfov_deg, c.near, c.far)
+    workspace, start = flight_region(scene, cfg)
+    return Rig(cfg, scene, world, camera, workspace, start, truth_field(scene, cfg, workspace) if truth else None)

@@ -1,0 +1,30 @@
+"""The files of a flight's run folder, named in one place: the loop writes them; resuming, the run
+evaluation, the sweep, its report, the benchmarks and the viewer read them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+CONFIG = "config.toml"  # the resolved scenario of the run
+CHECKPOINT = "checkpoint.pkl"  # the loop's state after the last frame (resume)
+FRAMES = "frames.csv"  # one row per frame: timings, counts, quality
+EVENTS = "events.log"
+DIAGNOSIS = "diagnosis.csv"  # output.diagnose
+MAP = "map.ply"  # the final map
+TRAJECTORY = "trajectory.csv"  # the flown trajectory at the control rate
+METRICS = "metrics.json"  # written last by the flight: its presence means the flight finished
+RECORDING = "recording.rrd"  # the rerun timeline's first segment
+SNAPSHOTS = "snapshots"  # map_<frame>.ply saved at each in-flight evaluation (evaluation.snapshots)
+EVAL = "eval.json"  # written last by `eval`: its presence means the run is scored
+MESH = "mesh.ply"  # the TSDF mesh of the final map
+NOVEL_VIEW = "novel_view.npz"  # the first evaluation view's ground truth and renders
+OVER_FRAMES = "eval_over_frames.csv"  # the snapshots' metrics over collected frames
+
+
+def snapshot_path(run_dir: str | Path, frame: int) -> Path:
+    return Path(run_dir) / SNAPSHOTS / f"map_{frame:05d}.ply"
+
+
+def snapshot_frame(path: str | Path) -> str:
+    """The frame number (as written) of a snapshot file."""
+    return Path(path).stem.split("_")[1]
