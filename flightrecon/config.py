@@ -202,7 +202,7 @@ class SelectorConfig:
                               "camera (m)")
     explore_range: float = _f(5.0, 0.1, 100.0, doc="gaussmi2d_explore: unknown space farther than this along a "
                               "scoring ray is worth nothing (m)")
-    explore_stride: int = _f(2, 1, 64, doc="gaussmi2d_explore: one frontier ray per this many scoring pixels "
+    explore_stride: int = _f(4, 1, 64, doc="gaussmi2d_explore: one frontier ray per this many scoring pixels "
                              "in each direction, weighted by the pixels it stands for")
 
 

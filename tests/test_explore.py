@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from flightrecon.active.explore import PRIOR_GAIN, GaussMI2DExplore, frontier_pixels
+from flightrecon.active.explore import PRIOR_GAIN, GaussMI2DExplore, frontier_pixels, integrate_seen_space
 from flightrecon.active.registry import make_selector
 from flightrecon.config import load_config
 from flightrecon.geometry import camera_pose, intrinsics
 from flightrecon.mission import Mission
-from flightrecon.planning.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
+from flightrecon.planning.occupancy import OccupancyMap
 
 TINY = ["camera.width=48", "camera.height=36", "selector.scoring_width=24", "selector.scoring_height=18",
         "mapper.k_new=5", "mapper.k_replay=2", "budget.frames=4", "budget.initial_views=1", "evaluation.views=2",
@@ -19,44 +19,65 @@ TINY = ["camera.width=48", "camera.height=36", "selector.scoring_width=24", "sel
 
 
 def _half_known_room() -> OccupancyMap:
-    """Free space for x < 2; at x in [2, 2.1) a wall where y >= 0; nothing seen where y < 0 beyond x = 2."""
+    """Free space for x < 2 (y < 0) or x < 1.9 (y >= 0); where y >= 0 a wall at x in [2, 2.1) behind a
+    one-voxel band left unknown, as the occupancy update leaves in front of a seen surface; nothing
+    seen where y < 0 beyond x = 2."""
     occ = OccupancyMap(np.array([[-1.0, -4.0, -1.0], [6.0, 4.0, 3.0]]), voxel_size=0.1)
     x = occ.origin[0] + (np.arange(occ.shape[0]) + 0.5) * 0.1
     y = occ.origin[1] + (np.arange(occ.shape[1]) + 0.5) * 0.1
     X, Y = np.meshgrid(x, y, indexing="ij")
-    free = np.broadcast_to((X < 2.0)[..., None], occ.shape)
+    free = np.broadcast_to(((X < 2.0) & ((Y < 0) | (X < 1.9)))[..., None], occ.shape)
     wall = np.broadcast_to(((X > 2.0) & (X < 2.1) & (Y >= 0))[..., None], occ.shape)
     occ.observed[:] = free | wall
     occ.logodds[:] = np.where(wall, 2.0, np.where(free, -1.0, 0.0))
     return occ
 
 
-def test_first_not_free_reports_what_each_ray_meets():
+def test_unknown_before_occupied_measures_the_unseen_space_each_ray_crosses():
     occ = _half_known_room()
     o = np.array([[0.05, 0.05, 1.05]] * 4)
     d = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    o[1, 1] = -0.55  # along -y inside the free half: the ray stays free up to 1 m
-    o[2, 1] = -0.55  # along +x at y < 0: past x = 2 it meets unknown space
-    got = occ.first_not_free(o, d, t_min=0.0, t_max=3.0)
-    assert got[0] == OCCUPIED and got[2] == UNKNOWN
-    assert occ.first_not_free(o[1:2], d[1:2], 0.0, 1.0)[0] == FREE
-    assert got[3] == UNKNOWN  # straight up it leaves the grid (top at z = 3): outside counts as unknown
-    assert occ.first_not_free(o[3:4], d[3:4], 0.0, 1.5)[0] == FREE
-    assert occ.first_not_free(o[:0], d[:0], 0.0, 3.0).shape == (0,)
+    o[1, 1] = -0.55  # along -y inside the free half
+    o[2, 1] = -0.55  # along +x at y < 0: past x = 2 nothing was seen
+    got = occ.unknown_before_occupied(o, d, t_min=0.0, t_max=3.0)
+    assert got[0] == pytest.approx(0.1, abs=0.051)  # only the band in front of the wall
+    assert got[1] == 0.0  # free all the way (y down to -3.55 stays inside the grid)
+    assert got[2] == pytest.approx(3.05 - 2.0, abs=0.051)
+    assert got[3] == pytest.approx(4.05 - 3.0, abs=0.051)  # straight up it leaves the grid: unknown
+    assert occ.unknown_before_occupied(o[:0], d[:0], 0.0, 3.0).shape == (0,)
 
 
-def test_frontier_pixels_count_the_rays_that_reach_unknown_space():
+def test_frontier_pixels_count_the_rays_into_unknown_space_not_the_band_before_a_wall():
     occ = _half_known_room()
     W, H = 40, 30
     K = intrinsics(W, H, 90.0)
     T = camera_pose(np.array([0.05, 0.05, 1.05]), 0.0)[None]  # looking along +x: left half of the image is y > 0
-    full = frontier_pixels(occ, T, K, W, H, t_min=0.3, t_max=5.0)[0]
+    kw = dict(t_min=0.3, min_unknown=0.3)
+    full = frontier_pixels(occ, T, K, W, H, t_max=5.0, **kw)[0]
     assert full == pytest.approx(W * H / 2, rel=0.06)
-    strided = frontier_pixels(occ, T, K, W, H, t_min=0.3, t_max=5.0, stride=2)[0]
+    assert frontier_pixels(occ, T, K, W, H, t_max=5.0, min_unknown=0.05, t_min=0.3)[0] > 0.9 * W * H  # the band would
+    strided = frontier_pixels(occ, T, K, W, H, t_max=5.0, stride=2, **kw)[0]
     assert strided == pytest.approx(full, rel=0.06)
-    assert frontier_pixels(occ, T, K, W, H, t_min=0.3, t_max=1.5)[0] == 0  # the frontier is 2 m away
-    away = camera_pose(np.array([0.05, 0.05, 1.05]), math.pi)[None]  # looking at -x: all free, then out of range
-    assert frontier_pixels(occ, away, K, W, H, t_min=0.3, t_max=0.9)[0] == 0
+    assert frontier_pixels(occ, T, K, W, H, t_max=1.5, **kw)[0] == 0  # the frontier is 2 m away
+    away = camera_pose(np.array([0.05, 0.05, 1.05]), math.pi)[None]  # looking at -x: free, then out of range
+    assert frontier_pixels(occ, away, K, W, H, t_max=0.9, **kw)[0] == 0
+
+
+def test_a_pixel_without_depth_carves_free_space_out_to_the_range():
+    occ = OccupancyMap(np.array([[-1.0, -3.0, -1.0], [8.0, 3.0, 3.0]]), voxel_size=0.1)
+    W, H = 160, 120  # dense enough that the wall's hits leave no gap between voxels
+    K = intrinsics(W, H, 90.0)
+    T = camera_pose(np.array([0.05, 0.05, 1.05]), 0.0)
+    depth = np.zeros((H, W), np.float32)
+    depth[:, : W // 2] = 2.0  # a wall 2 m ahead on the left half; nothing within range on the right
+    integrate_seen_space(occ, depth, K, T, beyond=5.2)
+    right = camera_pose(np.array([0.05, 0.05, 1.05]), 0.0)[:3, :3] @ np.array([0.3, 0.0, 1.0])
+    right = (right / np.linalg.norm(right))[None]
+    left = camera_pose(np.array([0.05, 0.05, 1.05]), 0.0)[:3, :3] @ np.array([-0.3, 0.0, 1.0])
+    left = (left / np.linalg.norm(left))[None]
+    o = np.array([[0.05, 0.05, 1.05]])
+    assert occ.unknown_before_occupied(o, right, 0.3, 5.0)[0] == pytest.approx(0.0, abs=0.051)
+    assert occ.unknown_before_occupied(o, left, 0.3, 5.0)[0] <= 0.15  # up to the wall, then its band
 
 
 def _wall_observation(cfg, mission):

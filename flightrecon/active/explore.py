@@ -4,16 +4,20 @@ The paper's MI (Eq. 22) sums over existing splats only, so a view of never-seen 
 nothing until a frame has put splats there; the diagnosis flights (results/diagnosis/) show the
 paper's method reaching less of the room's surface than ActiveGS for that reason. This variant
 treats the unknown space at the frontier of an occupancy map as surface not yet reconstructed:
-each scoring pixel whose ray, after leaving the known free space, meets unknown space (rather than
-an occupied voxel) within `selector.explore_range` counts as one more splat with the prior
-reliability P0 = 0.5 (the paper's initial value) and full transmittance. Its gain is Eq. 21 with
+each scoring pixel whose ray crosses unknown space (UNKNOWN_VOXELS of it, so the thin uncarved band
+in front of every seen surface does not count) before an occupied voxel, within
+`selector.explore_range`, counts as one more splat with the prior reliability P0 = 0.5 (the
+paper's initial value) and full transmittance. Its gain is Eq. 21 with
 that prior, -|w| log 0.5, where the unknown surface's normal is unknown: |w| is replaced by its
 mean over isotropic normals, E|cos| = 1/2. The splats' MI is the paper's, unchanged.
 
 The occupancy map is the selector's own (planning.occupancy.OccupancyMap at `selector.explore_voxel`,
 a box of `selector.explore_extent` around the first camera), fed every captured depth frame; it
-does not share the planner's, which may be the ground-truth scene. Rays start `hover_free_radius`
-from the candidate, the space the planner proved free around a drone it accepts there.
+does not share the planner's, which may be the ground-truth scene. A pixel with no depth return saw
+no surface within the camera's range, so its ray carves free space out to `explore_range` (the
+planner's map, more careful, carves nothing there); without that, space seen through a window or
+door would stay unknown and draw the drone forever. Rays start `hover_free_radius` from the
+candidate, the space the planner proved free around a drone it accepts there.
 """
 
 from __future__ import annotations
@@ -28,17 +32,19 @@ from flightrecon.active.selectors import GaussMI2D
 from flightrecon.config import ScenarioConfig
 from flightrecon.geometry import pixel_rays
 from flightrecon.mapping.mapper import OnlineMapper
-from flightrecon.planning.occupancy import UNKNOWN, OccupancyMap
+from flightrecon.planning.occupancy import OccupancyMap
 
 PRIOR_GAIN = -0.5 * math.log(0.5)  # -E|w| log P0 per pixel: Eq. 21 for unseen surface
+UNKNOWN_VOXELS = 3  # unknown space a ray must cross to count: more than the uncarved band of about one
+# voxel that the occupancy update leaves in front of every seen surface
 CAMERAS_PER_CALL = 16  # candidates whose rays are marched together (bounds the sample array)
 
 
 def frontier_pixels(occupancy: OccupancyMap, T_wc: np.ndarray, K: np.ndarray, width: int, height: int, *,
-                    t_min: float, t_max: float, stride: int = 1) -> np.ndarray:
-    """Per camera T_wc [C,4,4]: the pixels (of width x height with intrinsics K) whose ray first
-    leaves free space into unknown space between t_min and t_max m. One ray every `stride` pixels
-    in each direction stands for stride^2 pixels."""
+                    t_min: float, t_max: float, min_unknown: float, stride: int = 1) -> np.ndarray:
+    """Per camera T_wc [C,4,4]: the pixels (of width x height with intrinsics K) whose ray crosses at
+    least `min_unknown` m of unknown space between t_min and t_max m before meeting an occupied
+    voxel. One ray every `stride` pixels in each direction stands for stride^2 pixels."""
     rays = pixel_rays(width, height, np.asarray(K, float))[stride // 2::stride, stride // 2::stride].reshape(-1, 3)
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     poses = np.asarray(T_wc, float).reshape(-1, 4, 4)
@@ -47,9 +53,17 @@ def frontier_pixels(occupancy: OccupancyMap, T_wc: np.ndarray, K: np.ndarray, wi
         P = poses[s:s + CAMERAS_PER_CALL]
         dirs = np.einsum("cij,rj->cri", P[:, :3, :3], rays).reshape(-1, 3)
         origins = np.repeat(P[:, :3, 3], len(rays), axis=0)
-        first = occupancy.first_not_free(origins, dirs, t_min, t_max).reshape(len(P), len(rays))
-        counts[s:s + len(P)] = (first == UNKNOWN).sum(axis=1) * stride * stride
+        unknown = occupancy.unknown_before_occupied(origins, dirs, t_min, t_max).reshape(len(P), len(rays))
+        counts[s:s + len(P)] = (unknown >= min_unknown).sum(axis=1) * stride * stride
     return counts
+
+
+def integrate_seen_space(occupancy: OccupancyMap, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
+                         beyond: float) -> None:
+    """Add a depth frame to the occupancy map; a pixel with no return (0) saw no surface within the
+    camera's range, so its ray carves free space out to `beyond` m."""
+    depth = np.asarray(depth, np.float32)
+    occupancy.integrate(np.where(depth > 0, depth, np.float32(beyond)), K, T_wc)
 
 
 class GaussMI2DExplore(GaussMI2D):
@@ -68,7 +82,7 @@ class GaussMI2DExplore(GaussMI2D):
         if self.occupancy is None:
             half = 0.5 * np.asarray(s.explore_extent, float)
             self.occupancy = OccupancyMap(np.stack([center - half, center + half]), s.explore_voxel)
-        self.occupancy.integrate(obs.depth, obs.K, obs.T_wc)
+        integrate_seen_space(self.occupancy, obs.depth, obs.K, obs.T_wc, s.explore_range + 2 * s.explore_voxel)
         self.occupancy.mark_free_sphere(center, self.cfg.planner.hover_free_radius)
         return diag
 
@@ -79,7 +93,7 @@ class GaussMI2DExplore(GaussMI2D):
         s = self.cfg.selector
         px = frontier_pixels(self.occupancy, poses, self.K_score.numpy(), s.scoring_width, s.scoring_height,
                              t_min=self.cfg.planner.hover_free_radius, t_max=s.explore_range,
-                             stride=s.explore_stride)
+                             min_unknown=UNKNOWN_VOXELS * s.explore_voxel, stride=s.explore_stride)
         return PRIOR_GAIN * px
 
     def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:

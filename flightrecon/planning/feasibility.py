@@ -143,18 +143,29 @@ def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settin
 def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, field: DistanceField,
                      target_state: np.ndarray, workspace: np.ndarray, settings: PlanningSettings,
                      times: PlanningTimes | None = None) -> list[CandidateResult]:
-    """Feasibility of every candidate (positions (N, 3), yaws (N,)) from the current flat state.
+    """Feasibility of every candidate (positions (N, 3), yaws (N,)) from the current flat state:
+    targets screened, then straight legs for all together, then OMPL detours for those whose
+    straight leg came too close to an obstacle.
 
     `target_state` (N,) holds each target's map state (FREE, OCCUPIED, UNKNOWN)."""
     t_all = time.perf_counter()
     times = times if times is not None else PlanningTimes()
-    p0 = np.asarray(start.position, float)
-    v0 = np.array([*start.velocity, start.yaw_rate], float)
-    a0 = np.array([*start.acceleration, 0.0], float)
-    n = len(positions)
-    results = [CandidateResult(np.asarray(positions[i], float), float(yaws[i]), "") for i in range(n)]
-    inside = in_bounds(positions, workspace)
+    results = [CandidateResult(np.asarray(positions[i], float), float(yaws[i]), "") for i in range(len(positions))]
     d_target = field.distance(positions)
+    todo = _screen_targets(results, in_bounds(positions, workspace), target_state, d_target, settings)
+    t0 = time.perf_counter()
+    retry = _straight_legs(start, results, todo, field, settings)
+    times.straight = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    _detours(start, results, retry, d_target, field, workspace, settings, times)
+    times.ompl = time.perf_counter() - t0
+    times.total = time.perf_counter() - t_all
+    return results
+
+
+def _screen_targets(results: list[CandidateResult], inside: np.ndarray, target_state: np.ndarray,
+                    d_target: np.ndarray, settings: PlanningSettings) -> list[int]:
+    """Give a reason to each candidate whose target itself is unusable; returns the others' indices."""
     todo = []
     for i, r in enumerate(results):
         if not inside[i]:
@@ -167,8 +178,20 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
             r.reason = "clearance"
         else:
             todo.append(i)
-    # 1. Straight legs for all remaining candidates, checked together.
-    t0 = time.perf_counter()
+    return todo
+
+
+def _motion_start(start: FlatState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(position, [velocity, yaw rate], [acceleration, 0]) of the flat state, as time_path takes them."""
+    return (np.asarray(start.position, float), np.array([*start.velocity, start.yaw_rate], float),
+            np.array([*start.acceleration, 0.0], float))
+
+
+def _straight_legs(start: FlatState, results: list[CandidateResult], todo: list[int], field: DistanceField,
+                   settings: PlanningSettings) -> list[int]:
+    """Time and check a straight leg to every candidate in `todo` (checked together); returns the
+    indices whose leg failed only on clearance (worth a detour)."""
+    p0, v0, a0 = _motion_start(start)
     trajs, ok_idx, retry = [], [], []
     for i in todo:
         yaw_path = unwrap_yaws(start.yaw, results[i].yaw, np.array([0.0, 1.0]))
@@ -184,9 +207,13 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
             retry.append(i)
         else:
             _finish(results[i], tr, why, mc, ln, used_ompl=False)
-    times.straight = time.perf_counter() - t0
-    # 2. OMPL around obstacles for the rest.
-    t0 = time.perf_counter()
+    return retry
+
+
+def _detours(start: FlatState, results: list[CandidateResult], retry: list[int], d_target: np.ndarray,
+             field: DistanceField, workspace: np.ndarray, settings: PlanningSettings, times: PlanningTimes) -> None:
+    """An OMPL path around the obstacles to each candidate in `retry`, timed and checked."""
+    p0 = np.asarray(start.position, float)
     need = settings.required_clearance + search_margin(field)
     start_ok = field.distance(p0[None])[0] >= need
     reach: ReachableSpace | None = None  # built for the step's first search, reused by the others
@@ -205,24 +232,28 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
         if path is None:
             r.reason = "no_path"
             continue
-        seg_len = np.linalg.norm(np.diff(path, axis=0), axis=1)
-        frac = np.concatenate([[0.0], np.cumsum(seg_len)]) / max(seg_len.sum(), 1e-9)
-        yaw_path = unwrap_yaws(start.yaw, r.yaw, frac)
-        why, tr, mc, ln = "clearance", None, math.nan, math.nan
-        # Flowing through the waypoints first; stopping at each (straight legs) if that cuts a corner.
-        for stop in (False, True):
-            cand = time_path(path, yaw_path, settings.limits, v0, a0, stop_at_waypoints=stop)
-            if cand is None:
-                why = "limits"
-                continue
-            (why,), (mc,), (ln,) = check_trajectories([cand], field, settings, p0)
-            tr = cand
-            if why == "feasible":
-                break
-        _finish(r, tr, why, mc, ln, used_ompl=True)
-    times.ompl = time.perf_counter() - t0
-    times.total = time.perf_counter() - t_all
-    return results
+        _time_detour(start, r, path, field, settings)
+
+
+def _time_detour(start: FlatState, r: CandidateResult, path: np.ndarray, field: DistanceField,
+                 settings: PlanningSettings) -> None:
+    """Time an OMPL path: flowing through its waypoints first, stopping at each (straight legs) if
+    flowing cuts a corner."""
+    p0, v0, a0 = _motion_start(start)
+    seg_len = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    frac = np.concatenate([[0.0], np.cumsum(seg_len)]) / max(seg_len.sum(), 1e-9)
+    yaw_path = unwrap_yaws(start.yaw, r.yaw, frac)
+    why, tr, mc, ln = "clearance", None, math.nan, math.nan
+    for stop in (False, True):
+        cand = time_path(path, yaw_path, settings.limits, v0, a0, stop_at_waypoints=stop)
+        if cand is None:
+            why = "limits"
+            continue
+        (why,), (mc,), (ln,) = check_trajectories([cand], field, settings, p0)
+        tr = cand
+        if why == "feasible":
+            break
+    _finish(r, tr, why, mc, ln, used_ompl=True)
 
 
 def _finish(r: CandidateResult, tr: JerkTrajectory | None, why: str, min_clear: float, length: float,

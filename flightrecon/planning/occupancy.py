@@ -124,21 +124,20 @@ class OccupancyMap:
         out[ok] = np.where(obs, np.where(occ, OCCUPIED, FREE), UNKNOWN)
         return out
 
-    def first_not_free(self, origins: np.ndarray, directions: np.ndarray, t_min: float,
-                       t_max: float) -> np.ndarray:
-        """State of the first voxel that is not free along each ray, sampled every half voxel from
-        t_min to t_max m: UNKNOWN or OCCUPIED, or FREE when the ray stays in free space. origins and
-        unit directions are (R, 3); outside the grid counts as UNKNOWN, as in `state`."""
+    def unknown_before_occupied(self, origins: np.ndarray, directions: np.ndarray, t_min: float,
+                                t_max: float) -> np.ndarray:
+        """Length (m) of unknown space each ray crosses between t_min and t_max before its first
+        occupied voxel, sampled every half voxel; origins and unit directions are (R, 3). Outside
+        the grid counts as unknown, as in `state`."""
         o = np.asarray(origins, float).reshape(-1, 3)
         d = np.asarray(directions, float).reshape(-1, 3)
         step = 0.5 * self.voxel_size
         t = t_min + step * (np.arange(max(0, int(np.ceil((t_max - t_min) / step)))) + 0.5)
         if len(t) == 0 or len(o) == 0:
-            return np.full(len(o), FREE, np.int8)
+            return np.zeros(len(o))
         states = self.state(o[:, None, :] + d[:, None, :] * t[None, :, None]).reshape(len(o), len(t))
-        blocked = states != FREE
-        first = blocked.argmax(axis=1)
-        return np.where(blocked.any(axis=1), states[np.arange(len(o)), first], FREE).astype(np.int8)
+        before = np.cumsum(states == OCCUPIED, axis=1) == 0
+        return ((states == UNKNOWN) & before).sum(axis=1) * step
 
     def occupied(self) -> np.ndarray:
         return self.observed & (self.logodds > 0)
