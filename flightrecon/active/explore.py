@@ -16,8 +16,9 @@ a box of `selector.explore_extent` around the first camera), fed every captured 
 does not share the planner's, which may be the ground-truth scene. A pixel with no depth return saw
 no surface within the camera's range, so its ray carves free space out to `explore_range` (the
 planner's map, more careful, carves nothing there); without that, space seen through a window or
-door would stay unknown and draw the drone forever. Rays start `hover_free_radius` from the
-candidate, the space the planner proved free around a drone it accepts there.
+door would stay unknown and draw the drone forever. Rays start at the camera's near plane: a
+candidate may hover closer to a wall than any fixed radius (the planner keeps only the required
+clearance), and a ray started behind the wall would count the unseen space beyond it.
 """
 
 from __future__ import annotations
@@ -83,7 +84,7 @@ class GaussMI2DExplore(GaussMI2D):
             half = 0.5 * np.asarray(s.explore_extent, float)
             self.occupancy = OccupancyMap(np.stack([center - half, center + half]), s.explore_voxel)
         integrate_seen_space(self.occupancy, obs.depth, obs.K, obs.T_wc, s.explore_range + 2 * s.explore_voxel)
-        self.occupancy.mark_free_sphere(center, self.cfg.planner.hover_free_radius)
+        self.occupancy.mark_free_sphere(center, self.cfg.drone.body_radius)  # its own body proves this empty
         return diag
 
     def frontier_gain(self, poses: np.ndarray) -> np.ndarray:
@@ -92,7 +93,7 @@ class GaussMI2DExplore(GaussMI2D):
             return np.zeros(len(poses))
         s = self.cfg.selector
         px = frontier_pixels(self.occupancy, poses, self.K_score.numpy(), s.scoring_width, s.scoring_height,
-                             t_min=self.cfg.planner.hover_free_radius, t_max=s.explore_range,
+                             t_min=self.cfg.camera.near, t_max=s.explore_range,
                              min_unknown=UNKNOWN_VOXELS * s.explore_voxel, stride=s.explore_stride)
         return PRIOR_GAIN * px
 

@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="selector names (selector.method values)")
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per scene and method (default 3)")
     p.add_argument("--jobs", type=int, default=1, help="runs in parallel (default 1)")
+    p.add_argument("--max-runs", type=int, default=None,
+                   help="bring at most this many unfinished runs to an end, then report what is finished "
+                        "(a part of a sweep; run again to continue)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local process pool, or a Ray cluster (--ray-address; default a local instance)")
     p.add_argument("--ray-address", default=None, help="address of a running Ray cluster")
@@ -38,10 +41,11 @@ def run(args: argparse.Namespace) -> int:
     from flightrecon.experiments.report import collect, write_figures, write_tables
     from flightrecon.experiments.sweep import execute, plan_runs
 
-    if args.seeds < 1 or args.jobs < 1:
-        raise FlightReconError("sweep: --seeds and --jobs must be at least 1")
+    if args.seeds < 1 or args.jobs < 1 or (args.max_runs is not None and args.max_runs < 1):
+        raise FlightReconError("sweep: --seeds, --jobs and --max-runs must be at least 1")
     specs = plan_runs(args.scenario, args.scenes, args.methods, args.seeds, args.overrides, args.run_root)
-    execute(specs, args.jobs, args.executor, args.ray_address, log=lambda s: print(s, flush=True))
+    execute(specs, args.jobs, args.executor, args.ray_address, log=lambda s: print(s, flush=True),
+            max_runs=args.max_runs)
     report = Path(args.report) if args.report else specs[0].run_dir.parents[2] / "report"
     recs = collect([s.run_dir for s in specs])
     files = write_tables(recs, report) + write_figures(recs, report)

@@ -92,12 +92,17 @@ def run_one(spec: RunSpec, threads: int = 0) -> tuple[str, str]:
 
 
 def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_address: str | None = None,
-            log=print) -> list[tuple[str, str]]:
-    """Run the specs; finished runs are skipped without starting a worker."""
+            log=print, max_runs: int | None = None) -> list[tuple[str, str]]:
+    """Run the specs; finished runs are skipped without starting a worker. With `max_runs`, only the
+    first that many unfinished runs are brought to 'done' (one part of a sweep too long for one
+    sitting; the next call continues with the rest)."""
     todo = [s for s in specs if status(s) != "done"]
     done = [(str(s.run_dir), "skipped (finished)") for s in specs if status(s) == "done"]
     for d, what in done:
         log(f"{d}: {what}")
+    if max_runs is not None and len(todo) > max_runs:
+        log(f"this part runs {max_runs} of the {len(todo)} unfinished runs; the next call continues")
+        todo = todo[:max_runs]
     threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
     if not todo:
         return done
