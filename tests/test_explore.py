@@ -96,6 +96,7 @@ def test_explore_score_is_the_papers_mi_plus_the_frontier_gain(tmp_path):
     obs = _wall_observation(cfg, mission)
     explore = make_selector(cfg)
     assert isinstance(explore, GaussMI2DExplore)
+    assert explore.cfg.reliability.edge_mask and not cfg.reliability.edge_mask  # its own, not the config's
     explore.observe(mission.mapper, obs)
     T = obs.T_wc
     poses = np.stack([T, camera_pose(T[:3, 3], math.pi / 2), camera_pose(T[:3, 3], math.pi),
