@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from flightrecon.active.explore import PRIOR_GAIN, GaussMI2DExplore, frontier_pixels, integrate_seen_space
+from flightrecon.active.protocol import Observation
 from flightrecon.active.registry import make_selector
 from flightrecon.config import load_config
 from flightrecon.geometry import camera_pose, intrinsics
@@ -84,8 +85,6 @@ def _wall_observation(cfg, mission):
     """The tiny demo mission's first captured frame, mapped, as the selector sees it."""
     rgb, depth, T_wc, _ = mission.flight.capture(mission.rig.camera)
     mission.mapper.add_frame(rgb, depth, mission.rig.K, T_wc)
-    from flightrecon.active.protocol import Observation
-
     return Observation(0, rgb, depth, mission.rig.K, T_wc)
 
 

@@ -14,7 +14,7 @@ import csv
 import math
 from pathlib import Path
 
-KINDS = ("back_unseen", "back_seen", "front_unseen", "negative", "weak", "strong", "clamped")
+from flightrecon.active.diagnosis import KINDS
 
 
 def _rows(path: Path) -> list[dict]:
