@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from flightrecon.experiments.report import collect, write_figures, write_tables
+from flightrecon.experiments.report import collect, ranking_over_frames, write_figures, write_tables
 from flightrecon.experiments.sweep import execute, plan_runs, status
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
@@ -15,7 +15,8 @@ TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "sel
         "evaluation.views=2", "evaluation.every=1", "metrics.tsdf_voxel=0.05", "metrics.tsdf_truncation=0.15",
         "metrics.sample_points=5000"]
 
-TABLES = [f"{t}.{ext}" for t in ("overall", "paired", "per_scene", "efficiency") for ext in ("md", "csv", "tex")]
+TABLES = [f"{t}.{ext}" for t in ("overall", "paired", "per_scene", "efficiency", "ranking")
+          for ext in ("md", "csv", "tex")] + ["summary.md"]
 FIGURES = ["quality_over_frames.png", "candidate_time_over_frames.png", "quality_vs_time.png", "novel_views.png"]
 
 
@@ -51,10 +52,10 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
             assert 0 <= float(r["fscore"]) <= 1
     report = tmp_path / "report"
     recs = collect([s.run_dir for s in specs])
-    for r in recs:  # accuracy series: the snapshots' at their frames, the final map's at the last
-        expected = [float(row["accuracy_cm"]) for row in _rows(r["dir"] / "eval_over_frames.csv")]
-        expected.append(r["accuracy_cm"])
-        np.testing.assert_array_equal(r["series"]["eval_accuracy_cm"], np.array(expected, dtype=float))
+    for r in recs:  # mesh series: the snapshots' at their frames, the final map's at the last
+        for key in ("accuracy_cm", "completion_cm"):
+            expected = [float(row[key]) for row in _rows(r["dir"] / "eval_over_frames.csv")] + [r[key]]
+            np.testing.assert_array_equal(r["series"][f"eval_{key}"], np.array(expected, dtype=float))
     files = write_tables(recs, report) + write_figures(recs, report)
     assert sorted(p.name for p in files) == sorted(TABLES + FIGURES)
     for name in FIGURES:
@@ -64,6 +65,9 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
     paired = (report / "paired.md").read_text()  # one seed: a difference without an interval
     diff = recs[1]["psnr"] - recs[0]["psnr"] if recs[1]["method"] == "random" else recs[0]["psnr"] - recs[1]["psnr"]
     assert f"| random | all | {diff:.2f} |" in paired and "| random | room0 |" in paired
+    summary = (report / "summary.md").read_text()
+    assert "only the view-selection criterion differs" in summary and "- random: 1 finished run(s)" in summary
+    assert "(ranking.md)" in summary
     assert all(status(s) == "done" for s in specs)
     again = execute(specs, log=lambda s: None)
     assert [what for _, what in again] == ["skipped (finished)"] * 2
@@ -95,3 +99,25 @@ def test_ray_executor_runs_the_same_sweep_on_a_local_ray_instance(tmp_path, loca
     assert json.loads((specs[0].run_dir / "eval.json").read_text())["views"] == 2
     assert execute(specs, executor="ray", log=lambda s: None) == [(str(specs[0].run_dir), "skipped (finished)")]
     assert local_ray.is_initialized()  # the executor used the instance it found and left it running
+
+
+def _record(method: str, scene: str, seed: int, psnr_by_frame: dict[int, float]) -> dict:
+    return {"method": method, "scene": scene, "seed": seed,
+            "checkpoints": {f: {"psnr": v, "depth_l1_cm": 10 - v / 10, "fscore": v / 100}
+                            for f, v in psnr_by_frame.items()}}
+
+
+def test_ranking_over_frames_compares_the_evaluation_nearest_two_thirds_with_the_end():
+    # frames 0, 30, 60 in flight and 89 at the end of a 90-frame budget; 'b' overtakes 'a' after 60
+    recs = [_record("gaussmi2d", s, 0, {0: 5, 30: 20, 60: 24, 89: 25}) for s in ("x", "y")]
+    recs += [_record("random", s, 0, {0: 5, 30: 21, 60: 22, 89: 26}) for s in ("x", "y")]
+    recs.append(_record("random", "z", 0, {0: 5, 30: 99, 60: 99, 89: 99}))  # no gaussmi2d run on z: left out
+    check = ranking_over_frames(recs)
+    assert (check.early, check.end, check.runs) == (61, 90, 2)
+    assert check.same == {"PSNR": False, "D-L1": False, "F-score": False}
+    assert check.rows[0] == ["PSNR", "31", "random (21.00) > gaussmi2d (20.00)"]
+    assert check.rows[2] == ["PSNR", "90", "random (26.00) > gaussmi2d (25.00)"]
+    settled = [_record("gaussmi2d", "x", 0, {30: 20, 60: 24, 89: 25}), _record("random", "x", 0, {30: 21, 60: 22, 89: 23})]
+    assert ranking_over_frames(settled).same == {"PSNR": True, "D-L1": True, "F-score": True}
+    assert ranking_over_frames([_record("gaussmi2d", "x", 0, {89: 1}), _record("random", "y", 0, {89: 1})]) is None
+

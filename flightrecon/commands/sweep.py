@@ -51,5 +51,6 @@ def run(args: argparse.Namespace) -> int:
     files = write_tables(recs, report) + write_figures(recs, report)
     print((report / "overall.md").read_text())
     print((report / "efficiency.md").read_text())
+    print((report / "summary.md").read_text())
     print(f"{len(files)} files in {report}")
     return 0

@@ -5,13 +5,16 @@ Tables (each as .md, .csv and .tex): `overall` (per method, mean over scenes and
 on covered ones), `paired` (every method's paired difference to ours, over all runs and per scene,
 with its 95% interval: the same scenes and seeds are paired; * where it excludes zero),
 `per_scene` (PSNR, D-L1, F-score per method and scene, mean and interval over seeds),
-`efficiency` (per-candidate evaluation time, selector update time, model size).
+`efficiency` (per-candidate evaluation time, selector update time, model size), `paired_gaussmi2d_explore`
+(the same pairing against our exploring variant), `ranking` (methods ranked at each in-flight
+evaluation over the runs every method finished), and `summary.md` (what is compared, the run counts,
+and whether the ranking at 2/3 of the budget equals the final one).
 Per-candidate time = total scoring time / total feasible candidates scored, from frames.csv
 (t_score, n_feasible) over the steps that scored more than one candidate.
 
 Figures (PNG): quality over collected frames (PSNR and depth L1 of the evaluation views, which the
 loop records every `evaluation.every` frames; mean with min-max spread across seeds, averaged over
-scenes; mesh accuracy from the map snapshots saved at those frames, scored after the flight by
+scenes; mesh accuracy and completion from the map snapshots saved at those frames, scored after the flight by
 `evaluate_run`), per-candidate time over frames, quality versus
 per-candidate time labelled with model size, and novel-view grids (color, depth, normal) of the
 first scene's first seed annotated with PSNR, depth L1 and mean normal angle error.
@@ -24,6 +27,7 @@ import io
 import json
 import math
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +42,14 @@ OVERALL = [("psnr", "PSNR", "up", 2), ("psnr_covered", "PSNR cov.", "up", 2), ("
            ("accuracy_cm", "Acc [cm]", "down", 2), ("completion_cm", "Comp [cm]", "down", 2),
            ("chamfer_cm", "CD [cm]", "down", 2), ("fscore", "F-score", "up", 3)]
 PER_SCENE = [("psnr", "PSNR"), ("depth_l1_cm", "D-L1"), ("fscore", "F-score")]
+# the paper's method (`paired`), then our variant (`paired_<name>`): each paired with every other method
+REFERENCES = ("gaussmi2d", "gaussmi2d_explore")
+SNAPSHOT_KEYS = ("accuracy_cm", "completion_cm")
+RANKED = [("psnr", "PSNR", "up"), ("depth_l1_cm", "D-L1", "down"), ("fscore", "F-score", "up")]
+SHARED_PIPELINE = ("Every method here flies with the same 2DGS mapper, planner, candidate library, "
+                   "simulator and evaluation: only the view-selection criterion differs. The paper ran "
+                   "GauSS-MI and FisherRF on a 3DGS pipeline and ActiveGS with its own planner, so its "
+                   "comparison also mixes in those differences; this one isolates the criterion.")
 PAIRED = [("psnr", "PSNR", 2), ("psnr_covered", "PSNR cov.", 2), ("depth_l1_cm", "D-L1 [cm]", 2),
           ("completion_cm", "Comp [cm]", 2), ("fscore", "F-score", 3)]
 
@@ -68,29 +80,75 @@ def collect(run_dirs: list[Path]) -> list[dict]:
         n_cand = sum(n for _, n in scored)
         series = {k: np.array([_num(r.get(k)) for r in rows]) for k in
                   ("eval_psnr", "eval_depth_l1_cm", "t_score", "n_feasible")}
-        series["eval_accuracy_cm"] = _accuracy_series(d, len(rows), ev)
+        for key in SNAPSHOT_KEYS:
+            series[f"eval_{key}"] = _snapshot_series(d, len(rows), ev, key)
         recs.append({
             "dir": d, "scene": d.parent.parent.name, "method": met["method"], "seed": met["seed"], **ev,
             "ms_per_candidate": 1000 * sum(t for t, _ in scored) / n_cand if n_cand else math.nan,
             "ms_update": 1000 * met["mean_times_s"].get("t_select_update", math.nan),
             "s_per_frame": met["wall_time_s"] / max(1, met["frames"]), "frames": met["frames"],
-            "series": series,
+            "series": series, "checkpoints": _checkpoints(d, len(rows), ev),
         })
     return recs
 
 
-def _accuracy_series(run_dir: Path, n_frames: int, final: dict) -> np.ndarray:
-    """Mesh accuracy (cm) per frame: the in-flight snapshots' (eval_over_frames.csv), the final map's
-    at the last frame, NaN elsewhere."""
-    acc = np.full(n_frames, math.nan)
+def _snapshot_series(run_dir: Path, n_frames: int, final: dict, key: str) -> np.ndarray:
+    """One mesh metric (cm) per frame: the in-flight snapshots' (eval_over_frames.csv), the final
+    map's at the last frame, NaN elsewhere."""
+    out = np.full(n_frames, math.nan)
     path = run_dir / run_folder.OVER_FRAMES
     if path.is_file():
         for r in _read_frames(path):
             if int(r["frame"]) < n_frames:
-                acc[int(r["frame"])] = _num(r["accuracy_cm"])
+                out[int(r["frame"])] = _num(r[key])
     if n_frames:
-        acc[-1] = _num(final.get("accuracy_cm"))
-    return acc
+        out[-1] = _num(final.get(key))
+    return out
+
+
+def _checkpoints(run_dir: Path, n_frames: int, final: dict) -> dict[int, dict[str, float]]:
+    """{frame: {metric: value}} of the ranked metrics at every in-flight evaluation and at the end."""
+    out: dict[int, dict[str, float]] = {}
+    path = run_dir / run_folder.OVER_FRAMES
+    if path.is_file():
+        for r in _read_frames(path):
+            out[int(r["frame"])] = {k: _num(r.get(k)) for k, _, _ in RANKED}
+    if n_frames:
+        out[n_frames - 1] = {k: _num(final.get(k)) for k, _, _ in RANKED}
+    return out
+
+
+@dataclass(frozen=True)
+class RankingCheck:
+    """Methods ranked at each evaluation over the runs every method finished; `same[label]` says
+    whether the ranking at frame `early` (the evaluation nearest 2/3 of the budget) equals the final one."""
+    rows: list[list[str]]
+    same: dict[str, bool]
+    early: int
+    end: int
+    runs: int
+
+
+def ranking_over_frames(recs: list[dict]) -> RankingCheck | None:
+    """Rank the methods by their mean over the (scene, seed) runs that every method finished, at each
+    in-flight evaluation and at the end (frames counted from 1); None without such runs."""
+    methods = _methods(recs)
+    keys = set.intersection(*({(r["scene"], r["seed"]) for r in recs if r["method"] == m} for m in methods))
+    runs = [r for r in recs if (r["scene"], r["seed"]) in keys]
+    if not runs:
+        return None
+    frames = sorted(set.intersection(*(set(r["checkpoints"]) for r in runs)) - {0})
+    end = frames[-1]
+    early = min(frames[:-1] or frames, key=lambda f: abs(f + 1 - 2 * (end + 1) / 3))
+    rows, order = [], {}
+    for key, label, better in RANKED:
+        for f in frames:
+            means = {m: _mean(r["checkpoints"][f][key] for r in runs if r["method"] == m) for m in methods}
+            order[key, f] = sorted(methods, key=lambda m: means[m] if better == "down" else -means[m])
+            digits = 3 if key == "fscore" else 2
+            rows.append([label, str(f + 1), " > ".join(f"{m} ({_fmt(means[m], digits)})" for m in order[key, f])])
+    same = {label: order[key, early] == order[key, end] for key, label, _ in RANKED}
+    return RankingCheck(rows, same, early + 1, end + 1, len(keys))
 
 
 def _mean(vals) -> float:
@@ -103,7 +161,7 @@ def _fmt(v: float, digits: int) -> str:
 
 
 def _methods(recs: list[dict]) -> list[str]:
-    return sorted({r["method"] for r in recs}, key=lambda m: (m != "gaussmi2d", m))
+    return sorted({r["method"] for r in recs}, key=lambda m: (m != REFERENCES[0], m))
 
 
 def _write_table(out: Path, name: str, header: list[str], rows: list[list[str]], caption: str) -> list[Path]:
@@ -138,7 +196,6 @@ def _paired_cell(recs: list[dict], method: str, ours: str, key: str, digits: int
 def write_tables(recs: list[dict], out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     methods = _methods(recs)
-    ours = methods[0]
     scenes = sorted({r["scene"] for r in recs})
     seeds = sorted({r["seed"] for r in recs})
     note = f"{len(scenes)} scene(s), {len(seeds)} seed(s)"
@@ -149,13 +206,15 @@ def write_tables(recs: list[dict], out: Path) -> list[Path]:
     paths = _write_table(out, "overall", ["Method"] + [h for _, h, _, _ in OVERALL], rows,
                          f"Overall evaluation results (mean ± 95% interval over {note}; 'cov.': on pixels "
                          "the map covers, alpha >= 0.5)")
-    rows = []
-    for m in methods[1:]:
-        for scene in [None] + scenes:
-            rows.append([m, scene or "all"] + [_paired_cell(recs, m, ours, k, dg, scene) for k, _, dg in PAIRED])
-    paths += _write_table(out, "paired", ["Method", "Scene"] + [h for _, h, _ in PAIRED], rows,
-                          f"Paired difference to {ours} (method - {ours}, mean ± 95% interval over the same "
-                          f"scenes and seeds; * excludes zero; {note})")
+    for ours in [m for m in methods if m in REFERENCES]:
+        rows = []
+        for m in [m for m in methods if m != ours]:
+            for scene in [None] + scenes:
+                rows.append([m, scene or "all"] + [_paired_cell(recs, m, ours, k, dg, scene) for k, _, dg in PAIRED])
+        paths += _write_table(out, "paired" if ours == REFERENCES[0] else f"paired_{ours}",
+                              ["Method", "Scene"] + [h for _, h, _ in PAIRED], rows,
+                              f"Paired difference to {ours} (method - {ours}, mean ± 95% interval over the same "
+                              f"scenes and seeds; * excludes zero; {note})")
     rows = []
     for m in methods:
         for k, h in PER_SCENE:
@@ -172,7 +231,31 @@ def write_tables(recs: list[dict], out: Path) -> list[Path]:
     paths += _write_table(out, "efficiency", ["Method", "Per-candidate [ms]", "Selector update [ms]",
                                               "Model [MB]", "Wall time per frame [s]"], rows,
                           f"Efficiency (mean over {note}; CPU, this machine)")
+    check = ranking_over_frames(recs)
+    if check:
+        paths += _write_table(out, "ranking", ["Metric", "Frames", "Ranking (best first, mean)"], check.rows,
+                              f"Ranking over collected frames, over the {check.runs} (scene, seed) runs "
+                              "every method finished")
+    paths.append(_write_summary(out, recs, check))
     return paths
+
+
+def _write_summary(out: Path, recs: list[dict], check: RankingCheck | None) -> Path:
+    """What the tables compare, how many runs they hold, and whether the budget settles the ranking."""
+    lines = ["# Sweep summary", "", SHARED_PIPELINE, ""]
+    for m in _methods(recs):
+        mine = [r for r in recs if r["method"] == m]
+        lines.append(f"- {m}: {len(mine)} finished run(s) on {len({r['scene'] for r in mine})} scene(s)")
+    lines.append("")
+    if check:
+        verdicts = ", ".join(f"{k} {'same' if v else 'differs'}" for k, v in check.same.items())
+        lines.append(f"Ranking at frame {check.early} against the end (frame {check.end}), over the {check.runs} "
+                     f"(scene, seed) runs every method finished: {verdicts} (ranking.md).")
+    else:
+        lines.append("No (scene, seed) has a finished run of every method yet: no ranking over frames.")
+    path = out / "summary.md"
+    write_text(path, "\n".join(lines) + "\n")
+    return path
 
 
 def _curve(recs: list[dict], key: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -199,9 +282,10 @@ def write_figures(recs: list[dict], out: Path) -> list[Path]:
     methods = _methods(recs)
     paths = []
 
-    fig, axes = plt.subplots(1, 3, figsize=(14, 3.6))
+    fig, axes = plt.subplots(1, 4, figsize=(18, 3.6))
     for ax, (key, label) in zip(axes, (("eval_psnr", "PSNR [dB]"), ("eval_depth_l1_cm", "Depth L1 [cm]"),
-                                       ("eval_accuracy_cm", "Accuracy [cm]"))):
+                                       ("eval_accuracy_cm", "Accuracy [cm]"),
+                                       ("eval_completion_cm", "Completion [cm]"))):
         for m in methods:
             f, mean, lo, hi = _curve([r for r in recs if r["method"] == m], key)
             ax.plot(f + 1, mean, marker="o", ms=3, label=m)
