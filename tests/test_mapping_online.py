@@ -71,6 +71,23 @@ def test_second_frame_adds_only_unseen_surface_and_replays(views):
     assert mapper.last_trained == [8, 5]
 
 
+def test_refine_replays_every_stored_frame_and_lowers_their_loss(views):
+    K, vs = views
+    mapper = _mapper(k_new=3, k_replay=1, replay="stale", prune_opacity=0.05)
+    for rgb, depth, T in vs:
+        mapper.add_frame(rgb, depth, K, T)
+    before = [mapper.frame_loss(i) for i in range(2)]
+    clock = mapper._clock
+    mapper.refine(30)
+    assert mapper._clock == clock + 30 and min(mapper.last_trained) > clock  # both frames drawn
+    after = [mapper.frame_loss(i) for i in range(2)]
+    assert all(a < 0.9 * b for a, b in zip(after, before))
+    assert len(mapper.frames) == 2  # no frame added
+    assert bool((torch.sigmoid(mapper.map["opacity_logits"]) >= 0.05).all())  # pruned as after a frame
+    with pytest.raises(ValueError, match="iterations"):
+        mapper.refine(-1)
+
+
 def test_stale_replay_draws_frames_in_proportion_to_the_calls_since_their_training():
     mapper = _mapper(replay="stale")
     mapper.last_trained, mapper._clock = [1, 2, 50, 51], 51  # frame 3 is the one being added

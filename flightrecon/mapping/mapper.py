@@ -112,6 +112,21 @@ class OnlineMapper:
             self._prune()
         return FrameStats(index, added, len(self.map))
 
+    def refine(self, iterations: int) -> None:
+        """`iterations` replay iterations over every stored frame, drawn per `cfg.replay`, and no new
+        frame: how far the flight's views could take the map with a larger mapping budget."""
+        if iterations < 0:
+            raise ValueError(f"refine: iterations must be >= 0, got {iterations}")
+        if not self.frames:
+            return
+        for _ in range(iterations):
+            pick = self._replay_pick(len(self.frames))
+            self._clock += 1
+            self.last_trained[pick] = self._clock
+            self._optimize(self.frames[pick], 1)
+        if self.cfg.prune_opacity > 0:
+            self._prune()
+
     def _prune(self) -> None:
         """Drop the splats below `prune_opacity` (all columns) and keep their voxels taken."""
         drop = torch.sigmoid(self.map["opacity_logits"]) < self.cfg.prune_opacity
