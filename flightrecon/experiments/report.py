@@ -2,8 +2,9 @@
 
 Tables (each as .md, .csv and .tex): `overall` (per method, mean over scenes and seeds with its
 95% t-interval, as the paper's Table "Overall Evaluation Results", image metrics on all pixels and
-on covered ones), `paired` (every method's paired difference to ours, over all runs and per scene,
-with its 95% interval: the same scenes and seeds are paired; * where it excludes zero),
+on covered ones), `paired` (every method's paired difference to ours, over all scenes and per scene,
+with its 95% interval: the same scenes and seeds are paired, and over all scenes the unit is the
+scene with its seeds averaged; * where it excludes zero),
 `per_scene` (PSNR, D-L1, F-score per method and scene, mean and interval over seeds),
 `efficiency` (per-candidate evaluation time, selector update time, model size), `paired_gaussmi2d_explore`
 (the same pairing against our exploring variant), `ranking` (methods ranked at each in-flight
@@ -189,7 +190,9 @@ def _by_run(recs: list[dict], method: str, key: str, scene: str | None = None) -
 
 
 def _paired_cell(recs: list[dict], method: str, ours: str, key: str, digits: int, scene: str | None = None) -> str:
-    iv = paired_difference(_by_run(recs, method, key, scene), _by_run(recs, ours, key, scene))
+    """Over all scenes the unit is the scene (its seeds averaged); within one scene, the seed."""
+    iv = paired_difference(_by_run(recs, method, key, scene), _by_run(recs, ours, key, scene),
+                           unit=(lambda k: k[0]) if scene is None else None)
     return iv.format(digits) + ("*" if iv.excludes_zero() else "")
 
 
@@ -213,8 +216,9 @@ def write_tables(recs: list[dict], out: Path) -> list[Path]:
                 rows.append([m, scene or "all"] + [_paired_cell(recs, m, ours, k, dg, scene) for k, _, dg in PAIRED])
         paths += _write_table(out, "paired" if ours == REFERENCES[0] else f"paired_{ours}",
                               ["Method", "Scene"] + [h for _, h, _ in PAIRED], rows,
-                              f"Paired difference to {ours} (method - {ours}, mean ± 95% interval over the same "
-                              f"scenes and seeds; * excludes zero; {note})")
+                              f"Paired difference to {ours} (method - {ours} on the same scenes and seeds; "
+                              "'all': mean over scenes of the seed-averaged difference, 95% interval over "
+                              f"scenes; per scene: over seeds; * excludes zero; {note})")
     rows = []
     for m in methods:
         for k, h in PER_SCENE:
