@@ -103,13 +103,8 @@ class OnlineMapper:
         self._optimize(frame, self.cfg.k_new, count_observed=True)
         self._clock += 1
         self.last_trained.append(self._clock)
-        for _ in range(self.cfg.k_replay):
-            pick = self._replay_pick(index)
-            self._clock += 1
-            self.last_trained[pick] = self._clock
-            self._optimize(self.frames[pick], 1)
-        if self.cfg.prune_opacity > 0:
-            self._prune()
+        self._replay(index, self.cfg.k_replay)
+        self._prune()
         return FrameStats(index, added, len(self.map))
 
     def refine(self, iterations: int) -> None:
@@ -119,16 +114,21 @@ class OnlineMapper:
             raise ValueError(f"refine: iterations must be >= 0, got {iterations}")
         if not self.frames:
             return
+        self._replay(len(self.frames), iterations)
+        self._prune()
+
+    def _replay(self, index: int, iterations: int) -> None:
+        """One iteration on each of `iterations` frames before `index`, drawn by `_replay_pick`."""
         for _ in range(iterations):
-            pick = self._replay_pick(len(self.frames))
+            pick = self._replay_pick(index)
             self._clock += 1
             self.last_trained[pick] = self._clock
             self._optimize(self.frames[pick], 1)
-        if self.cfg.prune_opacity > 0:
-            self._prune()
 
     def _prune(self) -> None:
-        """Drop the splats below `prune_opacity` (all columns) and keep their voxels taken."""
+        """Drop the splats below `prune_opacity` (all columns) and keep their voxels taken; off at 0."""
+        if self.cfg.prune_opacity <= 0:
+            return
         drop = torch.sigmoid(self.map["opacity_logits"]) < self.cfg.prune_opacity
         count = int(drop.sum())
         if count == 0:
