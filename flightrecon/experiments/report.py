@@ -81,39 +81,35 @@ def collect(run_dirs: list[Path]) -> list[dict]:
         n_cand = sum(n for _, n in scored)
         series = {k: np.array([_num(r.get(k)) for r in rows]) for k in
                   ("eval_psnr", "eval_depth_l1_cm", "t_score", "n_feasible")}
+        over = _read_frames(d / run_folder.OVER_FRAMES) if (d / run_folder.OVER_FRAMES).is_file() else []
         for key in SNAPSHOT_KEYS:
-            series[f"eval_{key}"] = _snapshot_series(d, len(rows), ev, key)
+            series[f"eval_{key}"] = _snapshot_series(over, len(rows), ev, key)
         recs.append({
             "dir": d, "scene": d.parent.parent.name, "method": met["method"], "seed": met["seed"], **ev,
             "ms_per_candidate": 1000 * sum(t for t, _ in scored) / n_cand if n_cand else math.nan,
             "ms_update": 1000 * met["mean_times_s"].get("t_select_update", math.nan),
             "s_per_frame": met["wall_time_s"] / max(1, met["frames"]), "frames": met["frames"],
-            "series": series, "checkpoints": _checkpoints(d, len(rows), ev),
+            "series": series, "checkpoints": _checkpoints(over, len(rows), ev),
         })
     return recs
 
 
-def _snapshot_series(run_dir: Path, n_frames: int, final: dict, key: str) -> np.ndarray:
-    """One mesh metric (cm) per frame: the in-flight snapshots' (eval_over_frames.csv), the final
-    map's at the last frame, NaN elsewhere."""
+def _snapshot_series(over: list[dict], n_frames: int, final: dict, key: str) -> np.ndarray:
+    """One mesh metric (cm) per frame: the in-flight snapshots' (rows of eval_over_frames.csv), the
+    final map's at the last frame, NaN elsewhere."""
     out = np.full(n_frames, math.nan)
-    path = run_dir / run_folder.OVER_FRAMES
-    if path.is_file():
-        for r in _read_frames(path):
-            if int(r["frame"]) < n_frames:
-                out[int(r["frame"])] = _num(r[key])
+    for r in over:
+        if int(r["frame"]) < n_frames:
+            out[int(r["frame"])] = _num(r[key])
     if n_frames:
         out[-1] = _num(final.get(key))
     return out
 
 
-def _checkpoints(run_dir: Path, n_frames: int, final: dict) -> dict[int, dict[str, float]]:
-    """{frame: {metric: value}} of the ranked metrics at every in-flight evaluation and at the end."""
-    out: dict[int, dict[str, float]] = {}
-    path = run_dir / run_folder.OVER_FRAMES
-    if path.is_file():
-        for r in _read_frames(path):
-            out[int(r["frame"])] = {k: _num(r.get(k)) for k, _, _ in RANKED}
+def _checkpoints(over: list[dict], n_frames: int, final: dict) -> dict[int, dict[str, float]]:
+    """{frame: {metric: value}} of the ranked metrics at every in-flight evaluation (rows of
+    eval_over_frames.csv) and at the end."""
+    out = {int(r["frame"]): {k: _num(r.get(k)) for k, _, _ in RANKED} for r in over}
     if n_frames:
         out[n_frames - 1] = {k: _num(final.get(k)) for k, _, _ in RANKED}
     return out
