@@ -135,17 +135,23 @@ def test_visible_surface_of_procedural_scenes_drops_hidden_faces():
     assert 0.3 < vis.visible_area_m2 / vis.total_area_m2 < 0.6
 
 
+def _synthetic_comparison(rng, seeds: int, noise: float, by_scene: float = 0.0) -> tuple[dict, dict]:
+    """(theirs, ours) on 8 scenes x `seeds`: scene effects (sd 5) shared by both methods, a true
+    difference of 0.5 that varies by scene with sd `by_scene`, and `noise` per run."""
+    scene = rng.normal(0, 5, (8, 1))
+    ours = scene + rng.normal(0, noise, (8, seeds))
+    theirs = scene + 0.5 + (rng.normal(0, by_scene, (8, 1)) if by_scene else 0.0) + rng.normal(0, noise, (8, seeds))
+    keys = [(s, k) for s in range(8) for k in range(seeds)]
+    return {k: theirs[k] for k in keys}, {k: ours[k] for k in keys}
+
+
 def test_paired_interval_covers_a_known_difference():
-    # 2000 synthetic comparisons of 8 scenes x 3 seeds: scene effects shared by both methods, a true
-    # difference of 0.5, noise 0.5 per run; the 95% paired interval covers 0.5 in ~95% of them.
+    # 2000 synthetic comparisons of 8 scenes x 3 seeds, noise 0.5 per run: the 95% paired interval
+    # covers the true difference of 0.5 in ~95% of them.
     rng = np.random.default_rng(4)
     covered, excluded_zero = 0, 0
     for _ in range(2000):
-        scene = rng.normal(0, 5, (8, 1))
-        ours = scene + rng.normal(0, 0.5, (8, 3))
-        theirs = scene + 0.5 + rng.normal(0, 0.5, (8, 3))
-        keys = [(s, k) for s in range(8) for k in range(3)]
-        iv = paired_difference({k: theirs[k] for k in keys}, {k: ours[k] for k in keys})
+        iv = paired_difference(*_synthetic_comparison(rng, seeds=3, noise=0.5))
         covered += iv.low <= 0.5 <= iv.high
         excluded_zero += iv.excludes_zero()
     assert 0.93 < covered / 2000 < 0.97
@@ -162,11 +168,7 @@ def test_paired_interval_over_scenes_covers_a_difference_that_varies_by_scene():
     rng = np.random.default_rng(5)
     pooled, by_scene = 0, 0
     for _ in range(2000):
-        scene = rng.normal(0, 5, (8, 1))
-        ours = scene + rng.normal(0, 0.3, (8, 2))
-        theirs = scene + 0.5 + rng.normal(0, 0.6, (8, 1)) + rng.normal(0, 0.3, (8, 2))
-        keys = [(s, k) for s in range(8) for k in range(2)]
-        a, b = {k: theirs[k] for k in keys}, {k: ours[k] for k in keys}
+        a, b = _synthetic_comparison(rng, seeds=2, noise=0.3, by_scene=0.6)
         iv = paired_difference(a, b)
         pooled += iv.low <= 0.5 <= iv.high
         iv = paired_difference(a, b, unit=lambda k: k[0])
