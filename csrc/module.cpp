@@ -6,4 +6,5 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   bind_splat_axes(m);
   bind_optimizer(m);
   bind_image_ops(m);
+  bind_voxel_rays(m);
 }

@@ -16,7 +16,7 @@ from flightrecon.active.protocol import Observation
 from flightrecon.active.registry import SELECTORS, make_selector
 from flightrecon.active.selectors import GaussMI2D
 from flightrecon.config import load_config
-from flightrecon.geometry import camera_pose, intrinsics, rotmat_to_quat
+from flightrecon.geometry import camera_pose, intrinsics, pixel_rays, rotmat_to_quat
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.render import render
 
@@ -208,6 +208,42 @@ def test_activegs_exploration_counts_unexplored_voxels_in_front_of_a_wall():
     assert before > after > 0
     vm.touched[:] = True
     assert vm.visible_unexplored(T[None], K, 8, 6)[0] == 0
+
+
+def _unexplored_torch(vm: VoxelMap, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The exploration count as one torch statement: every sample of every ray, then distinct voxels."""
+    T = torch.as_tensor(np.asarray(T_wc, float))
+    rays = torch.nn.functional.normalize(torch.as_tensor(pixel_rays(width, height, K).reshape(-1, 3)), dim=-1)
+    dirs = torch.einsum("cij,rj->cri", T[:, :3, :3], rays)
+    pts = T[:, None, None, :3, 3] + dirs[:, :, None, :] * vm.ray_samples()[None, None, :, None]  # [C,R,S,3]
+    idx = vm.index(pts)
+    safe = idx.clamp_min(0)
+    occ = (idx >= 0) & (vm.logodds[safe] >= vm.OCC)
+    blocked = (torch.cumsum(occ.int(), -1) - occ.int()) > 0
+    unexplored = (idx >= 0) & ~blocked & ~vm.touched[safe]
+    cam = torch.arange(T.shape[0])[:, None, None].expand_as(idx)
+    keys = torch.unique(cam[unexplored] * vm.size + idx[unexplored])
+    return torch.bincount(keys // vm.size, minlength=T.shape[0]).numpy()
+
+
+def test_activegs_exploration_kernel_equals_its_torch_statement():
+    rng = np.random.default_rng(3)
+    vm = VoxelMap(np.array([0.3, -0.2, 1.1]), [6.0, 5.0, 2.4], 0.2)
+    vm.touched[:] = torch.from_numpy(rng.random(vm.size) < 0.5)
+    vm.logodds[:] = torch.where(vm.touched, torch.from_numpy(rng.uniform(-4.5, 4.5, vm.size)).float(), 0.0)
+    vm.logodds[7] = float(np.float32(vm.OCC))  # exactly at the occupied threshold
+    vm.touched[7] = True
+    K = intrinsics(40, 30, 90.0)
+    poses = [camera_pose(rng.uniform([-2.5, -2, 0.2], [2.5, 2, 2.2]), rng.uniform(-np.pi, np.pi)) for _ in range(20)]
+    poses.append(camera_pose(np.array([-6.0, 0.3, 1.0]), 0.0))  # outside the grid, its rays enter it
+    poses.append(camera_pose(np.array([30.0, 0.0, 1.0]), 0.0))  # outside, looking away: sees nothing
+    nan_pose = camera_pose(np.zeros(3), 0.0)
+    nan_pose[0, 3] = np.nan
+    poses.append(nan_pose)
+    poses = np.stack(poses)
+    got = vm.visible_unexplored(poses, K, 40, 30)
+    np.testing.assert_array_equal(got, _unexplored_torch(vm, poses, K, 40, 30))
+    assert (got[:20] > 0).mean() > 0.5 and got[-3] > 0 and got[-2] == 0 and got[-1] == 0
 
 
 def test_activegs_combination_and_path_term():

@@ -40,7 +40,7 @@ from flightrecon.active.reliability import observation_weights, splat_normals
 from flightrecon.config import ScenarioConfig
 from flightrecon.geometry import pixel_rays, yaw_of_camera
 from flightrecon.mapping.mapper import OnlineMapper
-from flightrecon.render import FisherDiag, render_fisher_diag
+from flightrecon.render import FisherDiag, load_extension, render_fisher_diag
 
 EXPLORE_RANGE = 5.0  # m, ActiveGS's utility range
 
@@ -248,20 +248,19 @@ class VoxelMap:
 
     def visible_unexplored(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
         """Unexplored voxels seen from each camera T_wc [C,4,4]: along its pixel rays (at the given
-        resolution) up to 5 m, before the first occupied voxel. Returns counts [C]."""
+        resolution, sampled every half voxel) up to 5 m, before the first occupied voxel. Returns
+        counts [C]. The ray march is the extension's (csrc/voxel_rays.cpp)."""
         T = torch.as_tensor(np.asarray(T_wc, float))
         rays = torch.nn.functional.normalize(torch.as_tensor(pixel_rays(width, height, K).reshape(-1, 3)), dim=-1)
-        steps = torch.arange(0.5, EXPLORE_RANGE / (self.voxel / 2)) * (self.voxel / 2)
         dirs = torch.einsum("cij,rj->cri", T[:, :3, :3], rays)  # [C,R,3]
-        pts = T[:, None, None, :3, 3] + dirs[:, :, None, :] * steps[None, None, :, None]  # [C,R,S,3]
-        idx = self.index(pts)
-        safe = idx.clamp_min(0)
-        occ = (idx >= 0) & (self.logodds[safe] >= self.OCC)
-        blocked = (torch.cumsum(occ.int(), -1) - occ.int()) > 0
-        unexplored = (idx >= 0) & ~blocked & ~self.touched[safe]
-        cam = torch.arange(T.shape[0])[:, None, None].expand_as(idx)
-        keys = torch.unique(cam[unexplored] * self.size + idx[unexplored])
-        return torch.bincount(keys // self.size, minlength=T.shape[0]).numpy()
+        return load_extension().count_unexplored(
+            dirs.double(), T[:, :3, 3].double(), self.ray_samples().double(), torch.as_tensor(self.origin),
+            torch.as_tensor(self.dims, dtype=torch.int64), self.voxel, self.logodds >= self.OCC,
+            self.touched).numpy()
+
+    def ray_samples(self) -> torch.Tensor:
+        """Distances along a ray at which the utility samples the grid: every half voxel to 5 m."""
+        return torch.arange(0.5, EXPLORE_RANGE / (self.voxel / 2)) * (self.voxel / 2)
 
     @property
     def size(self) -> int:
@@ -290,12 +289,16 @@ class ActiveGSSelector(_Scoring):
         return surfel_confidence(ensure_column(mapper, "ags_nobs", ()), ensure_column(mapper, "ags_vsum", (3,)),
                                  ensure_column(mapper, "ags_S", ()))
 
-    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
+    def observe_space(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> None:
+        """Integrate one depth frame into the voxel map (the first frame places the grid)."""
         b = self.cfg.baselines
         if self.voxels is None:
-            self.voxels = VoxelMap(obs.T_wc[:3, 3], b.activegs_extent, b.activegs_voxel)
-        self.voxels.integrate(obs.depth, obs.K, obs.T_wc)
-        self.last_center = np.asarray(obs.T_wc[:3, 3], float)
+            self.voxels = VoxelMap(T_wc[:3, 3], b.activegs_extent, b.activegs_voxel)
+        self.voxels.integrate(depth, K, T_wc)
+        self.last_center = np.asarray(T_wc[:3, 3], float)
+
+    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
+        self.observe_space(obs.depth, obs.K, obs.T_wc)
         n_obs, v_sum, S = (ensure_column(mapper, "ags_nobs", ()), ensure_column(mapper, "ags_vsum", (3,)),
                            ensure_column(mapper, "ags_S", ()))
         if len(mapper.map) == 0:
