@@ -54,10 +54,12 @@ def test_spheres_rest_on_the_table_and_on_the_floor_beside_and_under_it(tmp_path
     mujoco.mj_step(model, data, nstep=1000)
     z = {name: data.body(name).xpos[2] for name in starts}
     r = 0.05
-    # resting on the surface, at most 1.25 collision voxels above it (voxel + sample padding)
-    assert TABLE_H + r - 0.005 < z["on_table"] < TABLE_H + r + 1.25 * pitch + 0.005
-    assert r - 0.005 < z["beside"] < r + 1.25 * pitch + 0.005  # a convex hull would hold it at table height
-    assert r - 0.005 < z["under"] < r + 1.25 * pitch + 0.005  # and would not let it fall between the legs
+    # resting on the surface, at most the sample padding (a quarter voxel) above it: boxes hug the
+    # samples they hold, so a physical surface stands where the camera sees it, not a voxel in front
+    top = 0.25 * pitch + 0.003
+    assert TABLE_H + r - 0.005 < z["on_table"] < TABLE_H + r + top
+    assert r - 0.005 < z["beside"] < r + top  # a convex hull would hold it at table height
+    assert r - 0.005 < z["under"] < r + top  # and would not let it fall between the legs
     assert model.geom(SCENE_GEOM).contype == 0 and model.geom(SCENE_GEOM).conaffinity == 0
 
 
@@ -80,6 +82,27 @@ def test_collision_boxes_cover_the_surface_as_a_thin_shell(tmp_path):
     free_lo, free_hi = np.asarray(scene.meta["free_box"])
     grid = np.stack(np.meshgrid(*[np.linspace(a, b, 5) for a, b in zip(free_lo, free_hi)]), -1).reshape(-1, 3)
     assert not np.all((grid[:, None] >= lo) & (grid[:, None] <= hi), axis=2).any()  # the room is empty
+
+
+def test_collision_boxes_stand_a_quarter_voxel_in_front_of_an_off_grid_wall():
+    from flightrecon.scene.collision import SAMPLE_SPACING, collision_boxes
+
+    b = QuadMeshBuilder()
+    b.box([0.537, 0.0, 1.0], [0.0, 2.0, 2.0], solid([0.5, 0.5, 0.5], np.random.default_rng(0)), 0.25)
+    b.box([0.0, 0.0, -0.05], [2.0, 3.0, 0.1], solid([0.4, 0.4, 0.4], np.random.default_rng(1)), 0.25)
+    v, c, n, q = b.build()
+    scene = Scene("wall", v.astype(np.float64), quads_to_triangles(q), vertex_colors=c)
+    pitch = 0.05
+    boxes, _ = collision_boxes(scene, pitch)
+    lo, hi = boxes[:, :3] - boxes[:, 3:], boxes[:, :3] + boxes[:, 3:]
+    wall = (lo[:, 2] > 0.02) & (lo[:, 0] > 0.3)  # boxes above the floor's slab
+    assert wall.any()
+    pad = SAMPLE_SPACING * pitch
+    # whole voxels would span 0.50..0.55 (+ pad): the surface a camera sees is at 0.537
+    np.testing.assert_allclose(lo[wall, 0], 0.537 - pad, atol=1e-9)
+    np.testing.assert_allclose(hi[wall, 0], 0.537 + pad, atol=1e-9)
+    floor_top = hi[lo[:, 2] < -0.09, 2]  # the slab's top face at z = 0, in boxes of its own
+    assert floor_top.size and floor_top.max() <= pad + 1e-9
 
 
 def test_baked_assets_are_cached_by_content(tmp_path):

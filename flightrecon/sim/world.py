@@ -21,7 +21,7 @@ from flightrecon.scene.collision import collision_boxes
 from flightrecon.scene.source import cache_root
 from flightrecon.scene.types import Scene
 
-BAKE_VERSION = 3  # bump when baking changes, so cached assets are rebuilt
+BAKE_VERSION = 4  # bump when baking changes, so cached assets are rebuilt
 SCENE_MESH = "scene_mesh"
 SCENE_GEOM = "scene_visual"
 COLLISION_GROUP = 4  # hidden by MuJoCo's default visual options, like the drone's group 3
