@@ -15,6 +15,7 @@ TRAJECTORY = "trajectory.csv"  # the flown trajectory at the control rate
 METRICS = "metrics.json"  # written last by the flight: its presence means the flight finished
 RECORDING = "recording.rrd"  # the rerun timeline's first segment
 SNAPSHOTS = "snapshots"  # map_<frame>.ply saved at each in-flight evaluation (evaluation.snapshots)
+FAILED = "failed.txt"  # why the flight stopped (it diverged, or met bad data); a sweep then skips it
 EVAL = "eval.json"  # written last by `eval`: its presence means the run is scored
 MESH = "mesh.ply"  # the TSDF mesh of the final map
 NOVEL_VIEW = "novel_view.npz"  # the first evaluation view's ground truth and renders

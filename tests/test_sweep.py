@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from flightrecon.experiments.report import collect, ranking_over_frames, write_figures, write_tables
-from flightrecon.experiments.sweep import execute, plan_runs, status
+from flightrecon.experiments.sweep import execute, failure, plan_runs, status
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
         "mapper.k_new=5", "mapper.k_replay=2", "budget.frames=3", "budget.initial_views=1",
@@ -76,6 +76,24 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
     frames_before = (specs[1].run_dir / "frames.csv").stat().st_mtime_ns
     assert [what for _, what in execute(specs, log=lambda s: None)] == ["skipped (finished)", "evaluated"]
     assert (specs[1].run_dir / "frames.csv").stat().st_mtime_ns == frames_before
+
+
+@pytest.mark.slow
+def test_a_failed_flight_is_recorded_reported_and_skipped_until_retried(tmp_path):
+    # a real divergence: a 10 deg tilt limit is crossed by the first accelerating move
+    specs = plan_runs("demo", ["room0"], ["random"], 1, TINY + ["sim.divergence_tilt_deg=10"], str(tmp_path))
+    (run_dir, what), = execute(specs, log=lambda s: None)
+    assert what.startswith("failed: flight diverged") and "sim.divergence_tilt_deg" in what
+    assert status(specs[0]) == "failed" and failure(specs[0]) == what.removeprefix("failed: ")
+    (_, again), = execute(specs, log=lambda s: None)  # the next part goes on without it
+    assert again.startswith("skipped (failed earlier; --retry-failed flies it on): flight diverged")
+    report = tmp_path / "report"
+    recs = collect([s.run_dir for s in specs])  # none finished: the report still says what happened
+    write_tables(recs, report, {run_dir: failure(specs[0])}) + write_figures(recs, report)
+    summary = (report / "summary.md").read_text()
+    assert "1 flight(s) stopped with an error" in summary and f"- {run_dir}: flight diverged" in summary
+    (_, retried), = execute(specs, log=lambda s: None, retry_failed=True)  # the cause is still there
+    assert retried.startswith("failed: flight diverged")
 
 
 @pytest.fixture

@@ -26,6 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-runs", type=int, default=None,
                    help="bring at most this many unfinished runs to an end, then report what is finished "
                         "(a part of a sweep; run again to continue)")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="fly runs whose flight failed earlier on from their checkpoint (after fixing the cause)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local process pool, or a Ray cluster (--ray-address; default a local instance)")
     p.add_argument("--ray-address", default=None, help="address of a running Ray cluster")
@@ -39,16 +41,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from flightrecon.errors import FlightReconError
     from flightrecon.experiments.report import collect, write_figures, write_tables
-    from flightrecon.experiments.sweep import execute, plan_runs
+    from flightrecon.experiments.sweep import execute, failure, plan_runs
 
     if args.seeds < 1 or args.jobs < 1 or (args.max_runs is not None and args.max_runs < 1):
         raise FlightReconError("sweep: --seeds, --jobs and --max-runs must be at least 1")
     specs = plan_runs(args.scenario, args.scenes, args.methods, args.seeds, args.overrides, args.run_root)
     execute(specs, args.jobs, args.executor, args.ray_address, log=lambda s: print(s, flush=True),
-            max_runs=args.max_runs)
+            max_runs=args.max_runs, retry_failed=args.retry_failed)
     report = Path(args.report) if args.report else specs[0].run_dir.parents[2] / "report"
     recs = collect([s.run_dir for s in specs])
-    files = write_tables(recs, report) + write_figures(recs, report)
+    failed = {str(s.run_dir): why for s in specs if (why := failure(s)) is not None}
+    files = write_tables(recs, report, failed) + write_figures(recs, report)
     print((report / "overall.md").read_text())
     print((report / "efficiency.md").read_text())
     print((report / "summary.md").read_text())

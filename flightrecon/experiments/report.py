@@ -130,6 +130,8 @@ def ranking_over_frames(recs: list[dict]) -> RankingCheck | None:
     """Rank the methods by their mean over the (scene, seed) runs that every method finished, at each
     in-flight evaluation and at the end (frames counted from 1); None without such runs."""
     methods = _methods(recs)
+    if not methods:
+        return None
     keys = set.intersection(*({(r["scene"], r["seed"]) for r in recs if r["method"] == m} for m in methods))
     runs = [r for r in recs if (r["scene"], r["seed"]) in keys]
     if not runs:
@@ -192,7 +194,8 @@ def _paired_cell(recs: list[dict], method: str, ours: str, key: str, digits: int
     return iv.format(digits) + ("*" if iv.excludes_zero() else "")
 
 
-def write_tables(recs: list[dict], out: Path) -> list[Path]:
+def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = None) -> list[Path]:
+    """Every table, and summary.md (which lists `failed`: run folder -> why its flight stopped)."""
     out.mkdir(parents=True, exist_ok=True)
     methods = _methods(recs)
     scenes = sorted({r["scene"] for r in recs})
@@ -236,17 +239,22 @@ def write_tables(recs: list[dict], out: Path) -> list[Path]:
         paths += _write_table(out, "ranking", ["Metric", "Frames", "Ranking (best first, mean)"], check.rows,
                               f"Ranking over collected frames, over the {check.runs} (scene, seed) runs "
                               "every method finished")
-    paths.append(_write_summary(out, recs, check))
+    paths.append(_write_summary(out, recs, check, failed or {}))
     return paths
 
 
-def _write_summary(out: Path, recs: list[dict], check: RankingCheck | None) -> Path:
-    """What the tables compare, how many runs they hold, and whether the budget settles the ranking."""
+def _write_summary(out: Path, recs: list[dict], check: RankingCheck | None, failed: dict[str, str]) -> Path:
+    """What the tables compare, how many runs they hold (and which flights failed, why), and whether
+    the budget settles the ranking."""
     lines = ["# Sweep summary", "", SHARED_PIPELINE, ""]
     for m in _methods(recs):
         mine = [r for r in recs if r["method"] == m]
         lines.append(f"- {m}: {len(mine)} finished run(s) on {len({r['scene'] for r in mine})} scene(s)")
     lines.append("")
+    if failed:
+        lines.append(f"{len(failed)} flight(s) stopped with an error and are in no table:")
+        lines += [f"- {d}: {why}" for d, why in sorted(failed.items())]
+        lines.append("")
     if check:
         verdicts = ", ".join(f"{k} {'same' if v else 'differs'}" for k, v in check.same.items())
         lines.append(f"Ranking at frame {check.early} against the end (frame {check.end}), over the {check.runs} "
@@ -273,6 +281,9 @@ def _curve(recs: list[dict], key: str) -> tuple[np.ndarray, np.ndarray, np.ndarr
 
 
 def write_figures(recs: list[dict], out: Path) -> list[Path]:
+    """The report's figures (none while no run has finished)."""
+    if not recs:
+        return []
     import matplotlib
 
     matplotlib.use("Agg")

@@ -3,8 +3,11 @@
 Run folders: <output.run_root>/<scenario>/<scene>/<method>/seed<k>/ (the scene level keeps the
 eight scenes of one scenario apart). A run is finished when its eval.json exists; a run with a
 map.ply but no eval.json is only evaluated; a run with a checkpoint continues with
-`Mission.resume`. Executors: `local` (a process pool of `jobs` workers, inline when jobs = 1) or
-`ray` (the same task on a Ray cluster, local or `ray_address`).
+`Mission.resume`. A flight that stops with an error (it diverged, or met bad data) leaves failed.txt
+with the reason beside its checkpoint: the sweep goes on with the other runs, reports it, and skips
+it on later calls unless told to retry (after the cause is fixed, it resumes from the checkpoint).
+Executors: `local` (a process pool of `jobs` workers, inline when jobs = 1) or `ray` (the same task
+on a Ray cluster, local or `ray_address`).
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from pathlib import Path
 from flightrecon import run_folder
 from flightrecon.config import load_config
 from flightrecon.errors import FlightReconError
+from flightrecon.fileio import write_text
 from flightrecon.memory import keep_freed_memory
 
 
@@ -59,6 +63,8 @@ def status(spec: RunSpec) -> str:
     d = spec.run_dir
     if (d / run_folder.EVAL).is_file():
         return "done"
+    if (d / run_folder.FAILED).is_file():
+        return "failed"
     if (d / run_folder.METRICS).is_file() and (d / run_folder.MAP).is_file():
         return "evaluate"
     if (d / run_folder.CHECKPOINT).is_file():
@@ -66,8 +72,15 @@ def status(spec: RunSpec) -> str:
     return "new"
 
 
+def failure(spec: RunSpec) -> str | None:
+    """Why the run's flight stopped, or None."""
+    path = spec.run_dir / run_folder.FAILED
+    return path.read_text().strip() if path.is_file() else None
+
+
 def run_one(spec: RunSpec, threads: int = 0) -> tuple[str, str]:
-    """Bring one run to 'done'; returns (run folder, what was done).
+    """Bring one run to 'done', or to 'failed' when its flight stops with an error (the reason goes
+    to failed.txt); returns (run folder, what was done).
 
     Pool and ray workers start here, not in the CLI, so the malloc tuning the CLI applies to its
     own process is applied here too."""
@@ -82,22 +95,32 @@ def run_one(spec: RunSpec, threads: int = 0) -> tuple[str, str]:
     state = status(spec)
     if state == "done":
         return str(spec.run_dir), "skipped (finished)"
+    if state == "failed":  # asked to retry: fly on from the checkpoint
+        (spec.run_dir / run_folder.FAILED).unlink()
+        state = status(spec)
     if state in ("new", "resume"):
-        mission = (Mission.resume(spec.run_dir, progress=False) if state == "resume"
-                   else Mission(spec.config(), spec.run_dir, progress=False))
-        mission.run()
+        try:
+            mission = (Mission.resume(spec.run_dir, progress=False) if state == "resume"
+                       else Mission(spec.config(), spec.run_dir, progress=False))
+            mission.run()
+        except FlightReconError as exc:
+            write_text(spec.run_dir / run_folder.FAILED, f"{exc}\n")
+            return str(spec.run_dir), f"failed: {exc}"
     evaluate_run(spec.run_dir)
     return str(spec.run_dir), {"new": "flown and evaluated", "resume": "resumed and evaluated",
                                "evaluate": "evaluated"}[state]
 
 
 def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_address: str | None = None,
-            log=print, max_runs: int | None = None) -> list[tuple[str, str]]:
-    """Run the specs; finished runs are skipped without starting a worker. With `max_runs`, only the
-    first that many unfinished runs are brought to 'done' (one part of a sweep too long for one
-    sitting; the next call continues with the rest)."""
-    todo = [s for s in specs if status(s) != "done"]
-    done = [(str(s.run_dir), "skipped (finished)") for s in specs if status(s) == "done"]
+            log=print, max_runs: int | None = None, retry_failed: bool = False) -> list[tuple[str, str]]:
+    """Run the specs; finished runs, and failed ones unless `retry_failed`, are skipped without
+    starting a worker. With `max_runs`, only the first that many unfinished runs are brought to an
+    end (one part of a sweep too long for one sitting; the next call continues with the rest)."""
+    skip = {"done"} if retry_failed else {"done", "failed"}
+    todo = [s for s in specs if status(s) not in skip]
+    done = [(str(s.run_dir), "skipped (finished)" if status(s) == "done"
+             else f"skipped (failed earlier; --retry-failed flies it on): {failure(s)}")
+            for s in specs if status(s) in skip]
     for d, what in done:
         log(f"{d}: {what}")
     if max_runs is not None and len(todo) > max_runs:
