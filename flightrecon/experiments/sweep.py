@@ -117,10 +117,11 @@ def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_ad
     starting a worker. With `max_runs`, only the first that many unfinished runs are brought to an
     end (one part of a sweep too long for one sitting; the next call continues with the rest)."""
     skip = {"done"} if retry_failed else {"done", "failed"}
-    todo = [s for s in specs if status(s) not in skip]
-    done = [(str(s.run_dir), "skipped (finished)" if status(s) == "done"
+    states = [status(s) for s in specs]
+    todo = [s for s, state in zip(specs, states) if state not in skip]
+    done = [(str(s.run_dir), "skipped (finished)" if state == "done"
              else f"skipped (failed earlier; --retry-failed flies it on): {failure(s)}")
-            for s in specs if status(s) in skip]
+            for s, state in zip(specs, states) if state in skip]
     for d, what in done:
         log(f"{d}: {what}")
     if max_runs is not None and len(todo) > max_runs:

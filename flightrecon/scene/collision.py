@@ -62,9 +62,9 @@ def surface_voxels(scene: Scene, pitch: float) -> tuple[np.ndarray, np.ndarray]:
     return occ, origin
 
 
-def _sample_bounds(scene: Scene, pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Occupancy grid as in `surface_voxels`, with the per-voxel bounds (X, Y, Z, 3) of its samples
-    (lower, upper; +inf and -inf where a voxel holds none)."""
+def _sample_bounds(scene: Scene, pitch: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Occupancy grid and origin as in `surface_voxels`, with the per-voxel bounds (X, Y, Z, 3) of
+    its samples (lower, upper; +inf and -inf where a voxel holds none)."""
     origin, dims = _grid(scene, pitch)
     lower = np.full((*dims, 3), np.inf)
     upper = np.full((*dims, 3), -np.inf)
@@ -73,7 +73,7 @@ def _sample_bounds(scene: Scene, pitch: float) -> tuple[np.ndarray, np.ndarray, 
         flat = np.ravel_multi_index(np.floor((pts - origin) / pitch).astype(np.int64).T, dims)
         np.minimum.at(lower_rows, flat, pts)
         np.maximum.at(upper_rows, flat, pts)
-    return np.isfinite(lower[..., 0]), lower, upper
+    return np.isfinite(lower[..., 0]), origin, lower, upper
 
 
 def merge_boxes(labels: np.ndarray) -> np.ndarray:
@@ -139,8 +139,7 @@ def collision_boxes(scene: Scene, pitch: float = 0.05, max_boxes: int = MAX_BOXE
     if not (math.isfinite(pitch) and pitch > 0):
         raise ValueError(f"collision voxel pitch must be positive, got {pitch}")
     while True:
-        origin, _ = _grid(scene, pitch)
-        occ, lower, upper = _sample_bounds(scene, pitch)
+        occ, origin, lower, upper = _sample_bounds(scene, pitch)
         b = merge_boxes(_extent_labels(occ, lower, upper, origin, pitch))
         if len(b) <= max_boxes or max(occ.shape) <= 4:
             break
