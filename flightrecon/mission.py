@@ -87,7 +87,7 @@ class Mission:
         self.run_dir = Path(run_dir)
         self.progress = progress
         self.rig = rig = build_rig(cfg)
-        self.flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(rig.truth, cfg.drone.body_radius))
+        self.flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(rig.scene.trimesh, cfg.drone.body_radius))
         self.planner = Planner(cfg, rig.workspace, rig.scene.trimesh, rig.start)
         self.mapper = OnlineMapper(cfg.mapper, near=cfg.camera.near, far=cfg.camera.far, seed=cfg.seed)
         self.selector = make_selector(cfg)

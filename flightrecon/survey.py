@@ -124,7 +124,7 @@ def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str
     route = survey_waypoints(scene, cfg, field, headings)
     n_frames = sum(len(w.yaws) for w in route)
     c = cfg.camera
-    flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(field, cfg.drone.body_radius))
+    flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(scene.trimesh, cfg.drone.body_radius))
     writer = DatasetWriter(out_dir, camera.K, c.width, c.height)
     start = center.copy()
     start[2] = float(scene.meta.get("floor_z", scene.bounds[0, 2])) + START_ABOVE_FLOOR + 0.03

@@ -12,7 +12,8 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
 from flightrecon.config import load_config
 from flightrecon.errors import DataError, FlightReconError
-from flightrecon.evaluation import lpips_metric, tsdf
+from flightrecon import open3d_import
+from flightrecon.evaluation import lpips_metric
 from flightrecon.evaluation.lpips_metric import LpipsMetric
 from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface
 from flightrecon.evaluation.tsdf import fuse_depth_maps
@@ -215,14 +216,14 @@ def test_open3d_import_failure_is_one_clear_error(monkeypatch, error, expected):
             raise error
         return real_import(name, *args, **kwargs)
 
-    tsdf._open3d.cache_clear()
+    open3d_import.open3d_module.cache_clear()
     monkeypatch.setattr(builtins, "__import__", failing_import)
     try:
         with pytest.raises(FlightReconError, match="Open3D") as info:
-            tsdf._open3d()
+            open3d_import.open3d_module()
     finally:
         monkeypatch.undo()
-        tsdf._open3d.cache_clear()
+        open3d_import.open3d_module.cache_clear()
     assert expected in str(info.value)
 
 

@@ -22,7 +22,7 @@ def test_planned_trajectories_flown_in_mujoco_make_no_contact():
     start = np.array([0.0, 0.0, 1.2])
     planner = Planner(cfg, np.array(scene.meta["room_box"]), scene.trimesh, start_position=start)
     world = build_world(scene, cfg)
-    flight = Flight.from_world(world, cfg, ClearanceMonitor(planner.field, cfg.drone.body_radius))
+    flight = Flight.from_world(world, cfg, ClearanceMonitor(scene.trimesh, cfg.drone.body_radius))
     flight.start(start, 0.0)
     flight.hover(0.3)
     rng = np.random.default_rng(0)
@@ -71,7 +71,7 @@ def test_ompl_detour_around_a_wall_is_flown_without_contact():
     workspace = np.array([[-2.0, -2.0, 0.0], [3.0, 2.0, 2.5]])
     start = np.array([0.0, 0.2, 1.0])
     planner = Planner(cfg, workspace, mesh, start_position=start)
-    flight = Flight(model, data, cfg, ClearanceMonitor(planner.field, cfg.drone.body_radius))
+    flight = Flight(model, data, cfg, ClearanceMonitor(mesh, cfg.drone.body_radius))
     flight.start(start, 0.0)
     flight.hover(0.2)
     s = flight.state
@@ -104,7 +104,7 @@ def test_steps_planned_on_the_online_map_keep_clear_of_the_true_scene():
                                     free_seeds=start[None])
     world = build_world(scene, cfg)
     cam = RGBDCamera(world, cfg.camera.width, cfg.camera.height, cfg.camera.hfov_deg, cfg.camera.near, cfg.camera.far)
-    flight = Flight.from_world(world, cfg, ClearanceMonitor(truth, cfg.drone.body_radius))
+    flight = Flight.from_world(world, cfg, ClearanceMonitor(scene.trimesh, cfg.drone.body_radius))
     flight.start(start, 0.0)
     rng = np.random.default_rng(1)
     required = cfg.drone.body_radius + cfg.planner.safety_margin

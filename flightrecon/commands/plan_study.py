@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     widest = base.drone.body_radius + max(margins) + 0.1
     poses, yaws = sample_free_poses(field, ws, max(args.poses - 1, 0), widest, seed=base.seed)
     poses, yaws = np.vstack([start, poses]), np.concatenate([[0.0], yaws])
-    flyer = _Flyer(scene, base, field) if args.fly > 0 else None
+    flyer = _Flyer(scene, base) if args.fly > 0 else None
     rows = []
     for (lib, w, v, a, m), cfg in zip(combos, cfgs):
         settings = PlanningSettings.from_config(cfg)
@@ -137,17 +137,17 @@ def _med(x: list[float]) -> float:
 class _Flyer:
     """Flies trajectories from rest in one MuJoCo world; reports tracking error, clearance, contacts."""
 
-    def __init__(self, scene, cfg, field: DistanceField):
+    def __init__(self, scene, cfg):
         from flightrecon.sim.world import build_world
 
         self.world = build_world(scene, cfg)
-        self.field = field
+        self.mesh = scene.trimesh
 
     def fly(self, cfg, position: np.ndarray, yaw: float, trajectory) -> tuple[float, float, int]:
         from flightrecon.sim.flight import Flight
         from flightrecon.sim.safety import ClearanceMonitor, FlightDiverged
 
-        flight = Flight.from_world(self.world, cfg, ClearanceMonitor(self.field, cfg.drone.body_radius))
+        flight = Flight.from_world(self.world, cfg, ClearanceMonitor(self.mesh, cfg.drone.body_radius))
         flight.start(position, yaw)
         try:
             log = flight.fly(trajectory, extra_time=0.5)

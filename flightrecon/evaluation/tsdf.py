@@ -20,26 +20,17 @@ tensor integration (a point projecting to u in [i, i+1) reads pixel i, whose cen
 K needs no half-pixel shift. Every voxel observed once counts (weight_threshold=0); the signed
 distance is along the optical axis, d - z, clamped to the truncation, averaged with weight 1 per view.
 
-Open3D's wheel links the system libusb-1.0 (and libGL/libEGL/libX11); `make setup` installs
-libusb-1.0-0 where apt-get is available, and a failed import is reported as one FlightReconError
-naming the missing library and the fix. Open3D is imported on the first fusion, not with this
-module, so commands that never fuse (fly, map) do not load it.
+Open3D is imported on the first fusion (`open3d_import`), not with this module.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
-from functools import cache
 
 import numpy as np
 
-from flightrecon.errors import FlightReconError
 from flightrecon.geometry import backproject_depth, invert_pose
-
-# shared libraries Open3D's wheel links, and the Debian/Ubuntu package that provides each
-_SYSTEM_PACKAGES = {"libusb-1.0": "libusb-1.0-0", "libGL": "libgl1", "libEGL": "libegl1", "libX11": "libx11-6",
-                    "libgomp": "libgomp1", "libc++": "libc++1"}
+from flightrecon.open3d_import import open3d_module
 
 
 @dataclass
@@ -48,32 +39,10 @@ class TriangleMesh:
     faces: np.ndarray  # (F,3) int64
 
 
-@cache
-def _open3d():
-    """The open3d module, or a FlightReconError that says what is missing and how to install it."""
-    try:
-        import open3d
-    except ModuleNotFoundError as exc:
-        if exc.name != "open3d":
-            raise
-        raise FlightReconError("TSDF fusion needs Open3D, which is not installed: "
-                               "pip install 'open3d-cpu==0.20.0' (or reinstall flightrecon)") from None
-    except (ImportError, OSError) as exc:
-        lib = re.search(r"(lib[\w.+-]+?\.so[\w.]*)", str(exc))
-        name = lib.group(1) if lib else str(exc)
-        pkg = next((p for k, p in _SYSTEM_PACKAGES.items() if name.startswith(k + ".so")), None)
-        fix = f"install it with `apt-get install -y {pkg}` (or `make setup`)" if pkg else \
-            "install the system package that provides it"
-        raise FlightReconError(f"Open3D (TSDF fusion) does not import: the system library {name} is missing; "
-                               f"{fix}") from None
-    open3d.utility.set_verbosity_level(open3d.utility.VerbosityLevel.Error)  # no per-call info/warning lines
-    return open3d
-
-
 def fuse_depth_maps(depths: list[np.ndarray], poses: np.ndarray, K: np.ndarray, *, voxel: float,
                     truncation: float, max_depth: float = 10.0) -> TriangleMesh:
     """Mesh of the zero crossing of Open3D's TSDF fused from z-depth maps (0 = invalid) at T_wc poses."""
-    o3d = _open3d()
+    o3d = open3d_module()
     o3c = o3d.core
     grid = o3d.t.geometry.VoxelBlockGrid(attr_names=("tsdf", "weight"), attr_dtypes=(o3c.float32, o3c.float32),
                                          attr_channels=((1,), (1,)), voxel_size=float(voxel), block_resolution=16,

@@ -1,8 +1,8 @@
 """Flight safety monitors: clearance to the scene, contacts with it, and divergence of the state.
 
-Clearance comes from the scene's distance field (planning.distance_field), evaluated at the drone's
-center minus the radius of the sphere that encloses the frame and rotors, so it is the distance from
-the drone's body to the nearest surface (negative: the sphere overlaps the scene). Contacts are
+Clearance is the exact distance from the drone's center to the scene's triangles
+(scene.surface_distance) minus the radius of the sphere that encloses the frame and rotors, so it is
+the distance from the drone's body to the nearest surface (negative: the sphere overlaps the scene). Contacts are
 MuJoCo's own contacts between a drone geom and any other geom: one event when a pair starts
 touching, not one per step. Divergence (a non-finite state or a tilt beyond the limit) raises
 `FlightDiverged`, which carries the log recorded so far.
@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 from flightrecon.errors import FlightReconError
+from flightrecon.scene.surface_distance import SurfaceDistance
 
 
 class FlightDiverged(FlightReconError):
@@ -28,14 +29,14 @@ class FlightDiverged(FlightReconError):
 
 
 class ClearanceMonitor:
-    """Distance (m) from the drone's enclosing sphere to the nearest scene surface."""
+    """Distance (m) from the drone's enclosing sphere to the nearest surface of `mesh` (the scene)."""
 
-    def __init__(self, field, body_radius: float) -> None:
-        self.field = field
+    def __init__(self, mesh, body_radius: float) -> None:
+        self.surface = SurfaceDistance(mesh)
         self.body_radius = float(body_radius)
 
     def __call__(self, position: np.ndarray) -> float:
-        return float(self.field.distance(np.asarray(position, float).reshape(1, 3))[0]) - self.body_radius
+        return float(self.surface.distance(np.asarray(position, float).reshape(1, 3))[0]) - self.body_radius
 
 
 @dataclass(frozen=True)
