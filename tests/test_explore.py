@@ -30,7 +30,7 @@ def _half_known_room() -> OccupancyMap:
     free = np.broadcast_to(((X < 2.0) & ((Y < 0) | (X < 1.9)))[..., None], occ.shape)
     wall = np.broadcast_to(((X > 2.0) & (X < 2.1) & (Y >= 0))[..., None], occ.shape)
     occ.observed[:] = free | wall
-    occ.logodds[:] = np.where(wall, 2.0, np.where(free, -1.0, 0.0))
+    occ.surface[:] = wall
     return occ
 
 

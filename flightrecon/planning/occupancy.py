@@ -2,12 +2,17 @@
 
 Each frame is integrated in projective form, the vectorized equivalent of casting every pixel's ray:
 every voxel in the camera's view asks its own pixel whether the measured surface lies behind it
-(then the ray passed through it: free) and every valid depth point marks its voxel as hit. A voxel
-hit in a frame counts as occupied for that frame even if another ray passed through it. Evidence is
-accumulated as clamped log-odds (hit +0.85, pass -0.4, OctoMap's usual values), so a wall seen once
-survives a few grazing rays. Invalid depth (0: nothing within range) carves nothing. Voxels never
-touched stay unknown; planning never flies through the unseen: its body keeps clear of unknown
-space, and its safety margin keeps clear of occupied space (`distance_field(unknown_offset)`).
+(then the ray passed through it: free) and every valid depth point marks its voxel as hit.
+
+A hit is final. The scene is static and the depth exact to the renderer, so a voxel that once held
+a measured surface point holds surface; a passing ray only proves the line through one pixel empty.
+At thin edges and grazing angles (a table top's rim seen from above) the ray through a voxel's
+center passes while the surface crosses a corner of the voxel, and OctoMap-style log-odds (hit +0.85,
+pass -0.4) carved such rims after three passes, which let the planner route the drone's body into
+them. Spurious hits (from pose noise) therefore stay as obstacles: the safe side. Invalid depth (0:
+nothing within range) carves nothing. Voxels never touched stay unknown; planning never flies
+through the unseen: its body keeps clear of unknown space, and its safety margin keeps clear of
+occupied space (`distance_field(unknown_offset)`).
 """
 
 from __future__ import annotations
@@ -22,15 +27,14 @@ UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 
 
 class OccupancyMap:
-    """Log-odds voxel grid over a workspace box; `blocked()` is everything not known to be free."""
+    """Voxel grid over a workspace box: surface (ever hit), observed (hit or passed), else unknown;
+    `blocked()` is everything not known to be free."""
 
-    def __init__(self, bounds: np.ndarray, voxel_size: float = 0.05, hit: float = 0.85,
-                 miss: float = -0.4, clamp: tuple[float, float] = (-2.0, 3.5)):
+    def __init__(self, bounds: np.ndarray, voxel_size: float = 0.05):
         self.voxel_size = float(voxel_size)
         self.origin, self.shape = grid_for_bounds(bounds, voxel_size)
-        self.logodds = np.zeros(self.shape, np.float32)
+        self.surface = np.zeros(self.shape, bool)
         self.observed = np.zeros(self.shape, bool)
-        self.hit, self.miss, self.clamp = float(hit), float(miss), clamp
 
     @property
     def bounds(self) -> np.ndarray:
@@ -56,7 +60,7 @@ class OccupancyMap:
             hit[idx[ok, 0], idx[ok, 1], idx[ok, 2]] = True
         max_d = float(depth[valid].max()) if valid.any() else 0.0
         if max_d <= 0:
-            self._apply(hit, np.zeros_like(hit))
+            self._apply(hit, None)
             return
         # Voxels in the view frustum up to the farthest measurement.
         H, W = depth.shape
@@ -67,7 +71,7 @@ class OccupancyMap:
         lo = np.maximum(np.floor((frustum_w.min(0) - self.origin) / h).astype(int), 0)
         hi = np.minimum(np.ceil((frustum_w.max(0) - self.origin) / h).astype(int) + 1, self.shape)
         if np.any(hi <= lo):
-            self._apply(hit, np.zeros_like(hit))
+            self._apply(hit, None)
             return
         ii, jj, kk = [np.arange(a, b) for a, b in zip(lo, hi)]
         T_cw = invert_pose(T_wc)
@@ -94,7 +98,7 @@ class OccupancyMap:
         passed = (d > 0) & (z[sel] < d - h)
         free = np.zeros(self.shape, bool)
         free[sel[0][passed] + lo[0], sel[1][passed] + lo[1], sel[2][passed] + lo[2]] = True
-        self._apply(hit, free & ~hit)
+        self._apply(hit, free)
 
     def mark_free_sphere(self, center: np.ndarray, radius: float) -> None:
         """Declare the unknown voxels within `radius` of `center` free (the volume the drone occupies:
@@ -109,9 +113,7 @@ class OccupancyMap:
         gx, gy, gz = np.meshgrid(*axes, indexing="ij")
         inside = gx**2 + gy**2 + gz**2 <= radius**2
         box = tuple(slice(a, b) for a, b in zip(lo, hi))
-        sub_obs = self.observed[box]
-        self.logodds[box][inside & ~sub_obs] = self.miss
-        sub_obs |= inside
+        self.observed[box] |= inside
 
     def state(self, points: np.ndarray) -> np.ndarray:
         """UNKNOWN / FREE / OCCUPIED of the voxel holding each point (N, 3); outside the grid: UNKNOWN."""
@@ -119,9 +121,7 @@ class OccupancyMap:
         ok = self._inside(idx)
         out = np.full(len(idx), UNKNOWN, np.int8)
         i, j, k = idx[ok].T
-        obs = self.observed[i, j, k]
-        occ = self.logodds[i, j, k] > 0
-        out[ok] = np.where(obs, np.where(occ, OCCUPIED, FREE), UNKNOWN)
+        out[ok] = np.where(self.surface[i, j, k], OCCUPIED, np.where(self.observed[i, j, k], FREE, UNKNOWN))
         return out
 
     def unknown_before_occupied(self, origins: np.ndarray, directions: np.ndarray, t_min: float,
@@ -140,10 +140,10 @@ class OccupancyMap:
         return ((states == UNKNOWN) & before).sum(axis=1) * step
 
     def occupied(self) -> np.ndarray:
-        return self.observed & (self.logodds > 0)
+        return self.surface.copy()
 
     def free(self) -> np.ndarray:
-        return self.observed & (self.logodds <= 0)
+        return self.observed & ~self.surface
 
     def blocked(self) -> np.ndarray:
         """Not flyable: occupied or unknown."""
@@ -168,8 +168,8 @@ class OccupancyMap:
     def _inside(self, idx: np.ndarray) -> np.ndarray:
         return np.all((idx >= 0) & (idx < np.array(self.shape)), axis=1)
 
-    def _apply(self, hit: np.ndarray, passed: np.ndarray) -> None:
-        lo, hi = self.clamp
-        self.logodds[hit] = np.minimum(self.logodds[hit] + self.hit, hi)
-        self.logodds[passed] = np.maximum(self.logodds[passed] + self.miss, lo)
-        self.observed |= hit | passed
+    def _apply(self, hit: np.ndarray, passed: np.ndarray | None) -> None:
+        self.surface |= hit
+        self.observed |= hit
+        if passed is not None:
+            self.observed |= passed
