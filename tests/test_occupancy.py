@@ -8,9 +8,9 @@ import pytest
 import trimesh
 
 from flightrecon.config import load_config
-from flightrecon.geometry import camera_pose, intrinsics, pixel_rays
+from flightrecon.geometry import backproject_depth, camera_pose, intrinsics, pixel_rays
 from flightrecon.planning.distance_field import DistanceField
-from flightrecon.planning.occupancy import FREE, UNKNOWN, OccupancyMap
+from flightrecon.planning.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 
 H = 0.05
 
@@ -122,6 +122,25 @@ def test_a_measured_surface_is_never_carved_by_later_rays():
     for _ in range(5):
         occ.integrate(without_top, K, T)
     assert occ.occupied()[rim].all()
+
+
+def test_a_surface_seen_by_one_pixel_keeps_its_neighbours_from_being_carved():
+    """Voxels beside a one-pixel surface, whose own center pixel sees the far wall, may hold the rest of
+    that surface (a rim, a pole between pixels): a voxel is carved only if its whole footprint saw past it."""
+    w, h = 64, 48
+    K = intrinsics(w, h, 90.0)
+    T = camera_pose([0.0, 0.0, 1.2], 0.0)
+    depth = np.full((h, w), 3.0, np.float32)
+    depth[24, 32] = 1.0  # a thin object seen by one pixel
+    occ = OccupancyMap(np.array([[-3.3, -2.8, -0.3], [3.3, 2.8, 3.3]]), H)
+    occ.integrate(depth, K, T)
+    spike = backproject_depth(depth, K, T)[0][24 * w + 32]
+    assert occ.state(spike[None])[0] == OCCUPIED
+    side = T[:3, 0]  # the camera's x axis, in the world
+    beside = spike + np.outer([-1.0, 1.0], side) * H
+    assert (occ.state(beside) != FREE).all()
+    assert (occ.state(spike + np.outer([-1.0, 1.0], side) * 0.5) == FREE).all()  # far from it: carved
+    assert occ.state((T[:3, 3] + 0.6 * (spike - T[:3, 3]))[None])[0] == FREE  # in front of it: carved
 
 
 def _occupied_by(mesh, K, T, w, h) -> np.ndarray:

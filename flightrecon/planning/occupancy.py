@@ -1,15 +1,16 @@
 """Online occupancy voxel map built from depth frames: free along rays, occupied at hits, unknown elsewhere.
 
 Each frame is integrated in projective form, the vectorized equivalent of casting every pixel's ray:
-every voxel in the camera's view asks its own pixel whether the measured surface lies behind it
-(then the ray passed through it: free) and every valid depth point marks its voxel as hit.
+every voxel in the camera's view asks the pixels its footprint covers whether the measured surface
+lies more than a voxel behind its center (then the rays passed through it: free), and every valid
+depth point marks its voxel as hit.
 
 A hit is final. The scene is static and the depth exact to the renderer, so a voxel that once held
 a measured surface point holds surface; a passing ray only proves the line through one pixel empty.
 At thin edges and grazing angles (a table top's rim seen from above) the ray through a voxel's
-center passes while the surface crosses a corner of the voxel, and OctoMap-style log-odds (hit +0.85,
-pass -0.4) carved such rims after three passes, which let the planner route the drone's body into
-them. Spurious hits (from pose noise) therefore stay as obstacles: the safe side. Invalid depth (0:
+center passes while the surface crosses a corner of the voxel; asking only that ray, and weighing
+evidence as OctoMap-style log-odds (hit +0.85, pass -0.4), carved such rims after three passes and
+let the planner route the drone's body into them. Spurious hits (from pose noise) therefore stay as obstacles: the safe side. Invalid depth (0:
 nothing within range) carves nothing. Voxels never touched stay unknown; planning never flies
 through the unseen: its body keeps clear of unknown space, and its safety margin keeps clear of
 occupied space (`distance_field(unknown_offset)`).
@@ -18,12 +19,14 @@ occupied space (`distance_field(unknown_offset)`).
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 from flightrecon.errors import DataError
 from flightrecon.geometry import backproject_depth, invert_pose
 from flightrecon.planning.distance_field import DistanceField, grid_for_bounds
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+MAX_FOOTPRINT_PX = 64  # half-width cap of a voxel's footprint (a voxel right at the lens covers the image)
 
 
 class OccupancyMap:
@@ -93,9 +96,12 @@ class OccupancyMap:
         sel = np.nonzero(in_view)
         ui = np.clip(u[sel], 0, W - 1).astype(np.int64)
         vi = np.clip(v[sel], 0, H - 1).astype(np.int64)
-        d = depth[vi, ui]
-        # The ray passed this voxel if the surface is more than a voxel behind its center.
-        passed = (d > 0) & (z[sel] < d - h)
+        zs = z[sel]
+        # The rays passed this voxel if every pixel its footprint covers measured a surface more than
+        # a voxel behind its center: the pixel at its center alone misses a rim crossing its corner.
+        radius = np.minimum(np.ceil(np.float32(0.5 * np.sqrt(3) * h * K[0, 0]) / zs), MAX_FOOTPRINT_PX)
+        d = _footprint_min_depth(np.where(valid, depth, 0.0).astype(np.float32), ui, vi, radius.astype(np.int64))
+        passed = (d > 0) & (zs < d - h)
         free = np.zeros(self.shape, bool)
         free[sel[0][passed] + lo[0], sel[1][passed] + lo[1], sel[2][passed] + lo[2]] = True
         self._apply(hit, free)
@@ -173,3 +179,14 @@ class OccupancyMap:
         self.observed |= hit
         if passed is not None:
             self.observed |= passed
+
+
+def _footprint_min_depth(depth: np.ndarray, u: np.ndarray, v: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Smallest depth in the square of half-width `radius` px around each pixel (u, v); 0 (invalid)
+    wins, so a footprint touching a pixel without depth carves nothing."""
+    out = np.empty(len(u), np.float32)
+    for r in np.unique(radius):
+        m = radius == r
+        lowest = ndimage.minimum_filter(depth, size=2 * int(r) + 1, mode="nearest")
+        out[m] = lowest[v[m], u[m]]
+    return out
