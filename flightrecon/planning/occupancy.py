@@ -26,7 +26,8 @@ from flightrecon.geometry import backproject_depth, invert_pose
 from flightrecon.planning.distance_field import DistanceField, grid_for_bounds
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
-MAX_FOOTPRINT_PX = 64  # half-width cap of a voxel's footprint (a voxel right at the lens covers the image)
+# half-widths (px) a voxel's footprint is rounded up to; the last caps it (a voxel at the lens covers the image)
+FOOTPRINT_PX = np.array([1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64])
 
 
 class OccupancyMap:
@@ -99,8 +100,10 @@ class OccupancyMap:
         zs = z[sel]
         # The rays passed this voxel if every pixel its footprint covers measured a surface more than
         # a voxel behind its center: the pixel at its center alone misses a rim crossing its corner.
-        radius = np.minimum(np.ceil(np.float32(0.5 * np.sqrt(3) * h * K[0, 0]) / zs), MAX_FOOTPRINT_PX)
-        d = _footprint_min_depth(np.where(valid, depth, 0.0).astype(np.float32), ui, vi, radius.astype(np.int64))
+        # Half-widths rounded up to a few sizes (a wider square is the safe side): one filter per size.
+        need = np.float32(0.5 * np.sqrt(3) * h * K[0, 0]) / zs
+        radius = FOOTPRINT_PX[np.minimum(np.searchsorted(FOOTPRINT_PX, need), len(FOOTPRINT_PX) - 1)]
+        d = _footprint_min_depth(np.where(valid, depth, 0.0).astype(np.float32), ui, vi, radius)
         passed = (d > 0) & (zs < d - h)
         free = np.zeros(self.shape, bool)
         free[sel[0][passed] + lo[0], sel[1][passed] + lo[1], sel[2][passed] + lo[2]] = True
