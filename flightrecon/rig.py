@@ -38,8 +38,8 @@ def flight_region(scene: Scene, cfg: ScenarioConfig) -> tuple[np.ndarray, np.nda
 
 
 def truth_field(scene: Scene, cfg: ScenarioConfig, workspace: np.ndarray) -> DistanceField:
-    """Unsigned distance to the scene's mesh over the workspace and its margin (the clearance monitor's
-    and the evaluation views' ground truth)."""
+    """Unsigned distance to the scene's mesh over the workspace and its margin (where the evaluation
+    views may stand; flight clearance is measured exactly, by scene.surface_distance)."""
     pad = cfg.required_clearance + TRUTH_PAD
     return DistanceField.from_mesh(scene.trimesh, cfg.planner.voxel_size, workspace + np.array([[-pad], [pad]]),
                                    signed=False)

@@ -1,4 +1,4 @@
-"""Euclidean distance field over a voxel grid: the clearance oracle of planning and flight monitoring.
+"""Euclidean distance field over a voxel grid: the clearance oracle of planning.
 
 Values are stored at voxel centers and are signed: positive in free voxels (distance to the nearest
 blocked voxel's face), negative inside blocked ones. They come from scipy's exact Euclidean distance

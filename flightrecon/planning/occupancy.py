@@ -10,10 +10,10 @@ a measured surface point holds surface; a passing ray only proves the line throu
 At thin edges and grazing angles (a table top's rim seen from above) the ray through a voxel's
 center passes while the surface crosses a corner of the voxel; asking only that ray, and weighing
 evidence as OctoMap-style log-odds (hit +0.85, pass -0.4), carved such rims after three passes and
-let the planner route the drone's body into them. Spurious hits (from pose noise) therefore stay as obstacles: the safe side. Invalid depth (0:
-nothing within range) carves nothing. Voxels never touched stay unknown; planning never flies
-through the unseen: its body keeps clear of unknown space, and its safety margin keeps clear of
-occupied space (`distance_field(unknown_offset)`).
+let the planner route the drone's body into them. Spurious hits (from pose noise) therefore stay
+as obstacles: the safe side. Invalid depth (0: nothing within range) carves nothing. Voxels never
+touched stay unknown; planning never flies through the unseen: its body keeps clear of unknown
+space, and its safety margin keeps clear of occupied space (`distance_field(unknown_offset)`).
 """
 
 from __future__ import annotations

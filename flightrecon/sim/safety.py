@@ -2,10 +2,10 @@
 
 Clearance is the exact distance from the drone's center to the scene's triangles
 (scene.surface_distance) minus the radius of the sphere that encloses the frame and rotors, so it is
-the distance from the drone's body to the nearest surface (negative: the sphere overlaps the scene). Contacts are
-MuJoCo's own contacts between a drone geom and any other geom: one event when a pair starts
-touching, not one per step. Divergence (a non-finite state or a tilt beyond the limit) raises
-`FlightDiverged`, which carries the log recorded so far.
+the distance from the drone's body to the nearest surface (negative: the sphere overlaps the scene).
+Contacts are MuJoCo's own contacts between a drone geom and any other geom: one event when a pair
+starts touching, not one per step. Divergence (a non-finite state or a tilt beyond the limit)
+raises `FlightDiverged`, which carries the log recorded so far.
 """
 
 from __future__ import annotations
