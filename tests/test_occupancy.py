@@ -90,7 +90,7 @@ def test_synthetic_depth_marks_surfaces_occupied_rays_free_and_the_rest_unknown(
     assert occ.state(np.array([[-0.5, 0.2, 1.55], [-0.85, 0.2, 1.2]])).tolist() == [FREE, FREE]
 
 
-def test_invalid_depth_carves_nothing_and_evidence_accumulates():
+def test_invalid_depth_carves_nothing_and_a_repeated_view_changes_nothing():
     mesh = _room()
     w, h = 64, 48
     K = intrinsics(w, h, 90.0)
