@@ -14,6 +14,11 @@ let the planner route the drone's body into them. Spurious hits (from pose noise
 as obstacles: the safe side. Invalid depth (0: nothing within range) carves nothing. Voxels never
 touched stay unknown; planning never flies through the unseen: its body keeps clear of unknown
 space, and its safety margin keeps clear of occupied space (`distance_field(unknown_offset)`).
+
+What no rule here can catch: a surface that no pixel's ray hits. A thin plate seen almost edge-on
+(a lamp's top disc a few centimeters below the camera) can project to less than a pixel row, fall
+between pixel centers and leave every ray of its voxels passing; those voxels are carved. Only
+the safety margin, or a later view from another height, covers it.
 """
 
 from __future__ import annotations
