@@ -63,6 +63,25 @@ def test_pixel_sums_equal_brute_force(backend):
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
+def test_pixel_sums_of_values_computed_from_the_render_itself(backend):
+    """A loss image made from the render carries the render's graph; its pixel sums must still be
+    sum_p v(p) w_i(p), not the product rule's extra sum_p F(p) dv/df_i (the GauSS-MI port's bug: half
+    of the splats took negative evidence from a map that fit its frames)."""
+    s = _wall()
+    s["colors"] = torch.linspace(0.2, 0.8, 27).reshape(9, 3)
+    T = _cam([0.0, 0.1, 1.2], 0.0)
+    view = render_view_with_sums(s["means"], s["quats"], s["log_scales"], s["opacity_logits"], s["colors"],
+                                 torch.linalg.inv(T), K, W, H, backend=backend)
+    observed = torch.rand(H, W, 3, generator=torch.Generator().manual_seed(1))
+    loss = (view.output.features[0] - observed).abs().mean(-1)
+    assert loss.requires_grad  # the trap: v depends on the features through the render
+    v = -torch.log((1.7 * loss).clamp_min(1e-4))
+    Tij = _weights(s, T, K, backend)
+    brute = (Tij.double() * v.detach().double()[None]).sum(dim=(1, 2))
+    torch.testing.assert_close(view.splat_sums(v).double(), brute, rtol=1e-4, atol=1e-5)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
 def test_update_sides_and_gating(backend):
     s = _wall()
     N = s["means"].shape[0]

@@ -73,54 +73,101 @@ def test_all_baselines_and_ablations_are_registered():
         assert make_selector(_cfg(name)).name == name
 
 
-def test_gaussmi_update_and_score_follow_the_formulas():
-    cfg = _cfg("gaussmi")
+def _ck(mean, center):
+    """GauSS-MI's direction weights (its rasterizer's computeUnreliableCoeff), written out."""
+    d = (mean - center) / np.linalg.norm(mean - center)
+    return np.array([max(d[0], 0), max(d[1], 0), max(-d[0], 0), max(-d[1], 0)])
+
+
+def _gaussmi_expected(m, obs, cfg, start):
+    """GauSS-MI's update_reliability + input_logodds by hand: its loss image (accumulated depth, its
+    masks), L' = -ln(max(lambda_L L, 1e-4)), l_zk = clip(lambda_T sum_p w_i(p) c_ik L'(p), +-100),
+    then clip(l + clip(l_zk, +-10), +-10); splats of total weight < 1 keep theirs (our stand-in for
+    its 5-touched-pixel rule)."""
+    b, c = cfg.baselines, cfg.camera
+    w = _weights(m, obs.T_wc, obs.K, c.width, c.height).numpy()  # [N,H,W]
+    out = m.render_view(obs.T_wc, obs.K, c.width, c.height, outputs=("features", "alpha", "depth"))
+    D_acc = (out.depth[0, ..., 0] * out.alpha[0, ..., 0]).double().numpy()
+    color = out.features[0].double().numpy()
+    L = 0.95 * np.abs(color - obs.rgb).mean(-1) * (obs.rgb.sum(-1) > 0.01) \
+        + 0.05 * np.abs(D_acc - obs.depth) * (obs.depth > 0.01)
+    v = -np.log(np.maximum(b.gaussmi_lambda_L * L, 1e-4))
+    means = m.map["means"].double().numpy()
+    expect = start.copy()
+    for i in range(len(means)):
+        if w[i].sum() >= 1.0:
+            lz = np.clip(b.gaussmi_lambda_T * _ck(means[i], obs.T_wc[:3, 3]) * (w[i] * v).sum(), -100, 100)
+            expect[i] = np.clip(start[i] + np.clip(lz, -10, 10), -10, 10)
+    return expect, v
+
+
+def _noisy_obs(cfg, m, T, seed):
+    """The map's own render with per-pixel color noise, a band of badly wrong color (negative
+    evidence) and a few pixels without depth: a loss image with both signs of evidence."""
+    obs = _obs(cfg, m, T, offset=0.0)
+    rng = np.random.default_rng(seed)
+    obs.rgb = np.clip(obs.rgb + rng.normal(0, 0.05, obs.rgb.shape), 0, 1).astype(np.float32)
+    obs.rgb[:, : obs.rgb.shape[1] // 3] = 1.0 - obs.rgb[:, : obs.rgb.shape[1] // 3]
+    obs.depth[rng.random(obs.depth.shape) < 0.1] = 0.0
+    return obs
+
+
+@pytest.mark.parametrize("lambda_T", [0.02, 10.0])
+def test_gaussmi_update_follows_its_public_code(lambda_T):
+    """Held to its formulas at a lambda_T small enough that no clip hides a wrong sum, and at its
+    default, where the per-update clip (+-10) acts on log-odds that already hold evidence."""
+    cfg = _cfg("gaussmi", [f"baselines.gaussmi_lambda_T={lambda_T}"])
     m = _mapper(cfg)
     sel = GaussMISelector(cfg)
-    T = POSES[0]
-    obs = _obs(cfg, m, T)
-    sel.observe(m, obs)
-    c = cfg.camera
-    w = _weights(m, T, obs.K, c.width, c.height)  # [N,H,W]
-    out = m.render_view(T, obs.K, c.width, c.height, outputs=("features", "depth"))
-    L = 0.95 * np.abs(out.features[0].numpy() - obs.rgb).mean(-1) + 0.05 * np.abs(out.depth[0, ..., 0].numpy() - obs.depth)
-    valid = obs.depth > 0
-    v = np.where(valid, -np.log(np.maximum(1.7 * L, 1e-4)), 0.0)
-    means = m.map["means"].double().numpy()
-    expect = np.zeros((len(means), 4))
-    for i in range(len(means)):
-        d = means[i] - T[:3, 3]
-        d /= np.linalg.norm(d)
-        ck = np.array([max(d[0], 0), max(d[1], 0), max(-d[0], 0), max(-d[1], 0)])
-        if (w[i].numpy() * valid).sum() >= 1.0:
-            expect[i] = np.clip(np.clip(10.0 * ck * (w[i].numpy() * v).sum(), -100, 100), -10, 10)
-    np.testing.assert_allclose(m.map["gaussmi_logodds"].numpy(), expect, rtol=1e-3, atol=1e-3)
-    assert np.abs(expect).max() > 0.1  # the update did something
+    N = len(m.map)
+    state = np.zeros((N, 4))
+    for k, T in enumerate(POSES):
+        obs = _noisy_obs(cfg, m, T, seed=k)
+        expect, v = _gaussmi_expected(m, obs, cfg, state)
+        sel.observe(m, obs)
+        np.testing.assert_allclose(m.map["gaussmi_logodds"].double().numpy(), expect, rtol=2e-3, atol=2e-4)
+        state = expect
+    assert (v < 0).any() and (v > 0).any()  # both signs of evidence were exercised
+    if lambda_T < 1:
+        assert 0 < np.abs(state).max() < 9  # no clip acted
+    else:
+        assert (np.abs(state) == 10).any()
 
-    # score: sum_p sum_i w_i(p) g_i at the scoring resolution, g_i = sum_k c_ik (-ln P_ik)
+
+def test_gaussmi_score_follows_its_public_code():
+    """sum_p sum_i w_i(p) g_i at the scoring resolution, g_i = sum_k c_ik (-ln P_ik)."""
+    cfg = _cfg("gaussmi", ["baselines.gaussmi_lambda_T=0.05"])
+    m = _mapper(cfg)
+    sel = GaussMISelector(cfg)
+    sel.observe(m, _noisy_obs(cfg, m, POSES[0], seed=3))
     Ks = sel.K_score.numpy().astype(float)
     l = m.map["gaussmi_logodds"].double().numpy()
     P = np.clip(1 / (1 + np.exp(-l)), 1e-4, 0.9999)
+    means = m.map["means"].double().numpy()
     raw = []
     for Tc in POSES:
         ws = _weights(m, Tc, Ks, sel.width, sel.height).numpy()
-        g = []
-        for i in range(len(means)):
-            d = means[i] - Tc[:3, 3]
-            d /= np.linalg.norm(d)
-            ck = np.array([max(d[0], 0), max(d[1], 0), max(-d[0], 0), max(-d[1], 0)])
-            g.append((ck * -np.log(P[i])).sum())
-        raw.append(sum(ws[i].sum() * g[i] for i in range(len(means))))
+        raw.append(sum(ws[i].sum() * (_ck(means[i], Tc[:3, 3]) * -np.log(P[i])).sum() for i in range(len(means))))
     np.testing.assert_allclose(sel.view_scores(m, POSES).numpy(), raw, rtol=1e-3)  # float32 sums
-    # the first candidate is the view just taken: discounted by 0.95^1; the second is not
-    np.testing.assert_allclose(sel.score(m, POSES), [raw[0] * 0.05, raw[1]], rtol=1e-3)
+    # one viewpoint taken: no revisit discount yet (its inPreviousVps needs more than 5)
+    np.testing.assert_allclose(sel.score(m, POSES), raw, rtol=1e-3)
 
 
-def test_revisit_discount_decays_with_frames_since_the_visit():
-    visited = [(0, np.zeros(3), 0.0), (3, np.array([5.0, 0, 0]), 0.0)]
-    assert revisit_discount(np.array([0.2, 0, 0]), 0.1, visited, now=3) == pytest.approx(0.95 ** 4)
-    assert revisit_discount(np.array([0.2, 0, 0]), 0.5, visited, now=3) == 0.0  # yaw differs > 10 deg
-    assert revisit_discount(np.array([0.5, 0, 0]), 0.0, visited, now=3) == 0.0  # farther than 0.3 m
+def test_revisit_discount_follows_in_previous_vps():
+    far = [(np.array([9.0, 9.0, 1.0]), 0.0)]
+    here = (np.zeros(3), 0.0)
+    # at most 5 viewpoints: no discount at all, even on top of one
+    assert revisit_discount(np.zeros(3), 0.0, far * 4 + [here]) == 0.0
+    # the newest (the current pose) and the oldest are never matched
+    assert revisit_discount(np.zeros(3), 0.0, [here] + far * 5 + [here]) == 0.0
+    # a match k steps back from the second-newest gives 0.95^(k+1)
+    visited = far + [here] + far * 3 + [far[0]]
+    assert revisit_discount(np.array([0.2, 0, 0]), 0.1, visited) == pytest.approx(0.95 ** 4)
+    assert revisit_discount(np.array([0.2, 0, 0]), 0.2, visited) == 0.0  # yaw differs by >= 10 deg
+    assert revisit_discount(np.array([0.3, 0, 0]), 0.0, visited) == 0.0  # not closer than 0.3 m
+    # yaw compared across the +-pi seam
+    seam = far + [(np.zeros(3), math.pi - 0.05)] + far * 4
+    assert revisit_discount(np.zeros(3), -math.pi + 0.05, seam) == pytest.approx(0.95 ** 4)
 
 
 def test_fisherrf_score_is_the_trace_over_all_collected_frames():

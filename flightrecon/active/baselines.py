@@ -7,12 +7,10 @@ so it stays aligned with the splats through growth and pruning. None of them kee
 so `reliable_share` is 0 and the stopping rule never stops them.
 
 - `gaussmi` (Xie and Pan, RSS 2025): four world-horizontal reliability log-odds per splat
-  [+x, +y, -x, -y], updated from its loss image L = 0.95 |I - I_obs| + 0.05 |D - D_obs|; view score
-  = sum_p sum_i w_i(p) g_i with g_i = sum_k c_ik (-ln P_ik), times (1 - revisit discount).
-  Deviations, forced by a rasterizer without a per-pair transmittance gate: the evidence sums all
-  blend weights w_i(p) instead of only those whose transmittance before i exceeds 0.8, and a splat
-  is skipped when its total blend weight over valid pixels is below 1 (instead of "fewer than 5
-  gated pixels"). The revisit discount 0.95^k takes k = frames since the matching earlier view + 1.
+  [+x, +y, -x, -y], updated from its loss image L = 0.95 |I - I_obs| + 0.05 |D_acc - D_obs|; view
+  score = sum_p sum_i w_i(p) g_i with g_i = sum_k c_ik (-ln P_ik), times (1 - revisit discount).
+  docs/baselines.md lists what follows its public code and the one departure (no transmittance
+  gate in the evidence sum, which our rasterizer does not expose per splat and pixel).
 - `fisherrf` (Jiang et al., ECCV 2024): score = sum_theta H_cand / (H_train + lambda) with the
   rasterizer's squared-contribution diagonal Hessian (position, color, scale, opacity); H_train
   sums over all frames collected so far and is recomputed at each selection (one view is chosen
@@ -43,6 +41,14 @@ from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.render import FisherDiag, load_extension, render_fisher_diag
 
 EXPLORE_RANGE = 5.0  # m, ActiveGS's utility range
+# GauSS-MI's constants (its public configs and code, docs/baselines.md)
+GAUSSMI_RGB_WEIGHT = 0.95  # loss_rgb_alpha
+GAUSSMI_MIN_LOSS = 1e-4  # reli_min_loss
+GAUSSMI_CLAMP = 10.0  # log-odds clip of input_logodds
+GAUSSMI_MIN_WEIGHT = 1.0  # our stand-in for reli_touch_threshold (5 pixels with transmittance > 0.8)
+GAUSSMI_DISCOUNT = 0.95  # pre_discount_coeff
+GAUSSMI_FREE_VIEWS = 5  # no revisit discount while at most this many viewpoints were taken
+GAUSSMI_KEPT_VIEWS = 100  # max_num_previous_vps
 
 
 class _Scoring:
@@ -64,10 +70,32 @@ def direction_weights(means: torch.Tensor, centers: torch.Tensor) -> torch.Tenso
     return torch.stack([dx.clamp_min(0), dy.clamp_min(0), (-dx).clamp_min(0), (-dy).clamp_min(0)], -1)
 
 
-def gaussmi_loss_image(color: torch.Tensor, depth: torch.Tensor, rgb_obs: torch.Tensor,
+def gaussmi_loss_image(color: torch.Tensor, accumulated_depth: torch.Tensor, rgb_obs: torch.Tensor,
                        depth_obs: torch.Tensor) -> torch.Tensor:
-    """L [H,W] = 0.95 mean_rgb |I - I_obs| + 0.05 |D - D_obs| (GauSS-MI's loss image)."""
-    return 0.95 * (color - rgb_obs).abs().mean(-1) + 0.05 * (depth - depth_obs).abs()[..., 0]
+    """L [H,W] = 0.95 mean_rgb |I - I_obs| + 0.05 |D - D_obs| (GauSS-MI's loss image), D the
+    accumulated depth sum_i w_i z_i (not divided by alpha, as its rasterizer outputs it); the color
+    term where the observed color sums above 0.01, the depth term where the observed depth exceeds
+    0.01 m (its masks)."""
+    rgb_mask = rgb_obs.sum(-1) > 0.01
+    depth_mask = depth_obs[..., 0] > 0.01
+    l1_rgb = torch.where(rgb_mask, (color - rgb_obs).abs().mean(-1), 0.0)
+    l1_depth = torch.where(depth_mask, (accumulated_depth - depth_obs).abs()[..., 0], 0.0)
+    return GAUSSMI_RGB_WEIGHT * l1_rgb + (1 - GAUSSMI_RGB_WEIGHT) * l1_depth
+
+
+def gaussmi_evidence(L: torch.Tensor, lambda_L: float) -> torch.Tensor:
+    """Per-pixel log-odds evidence -ln(max(lambda_L L, 1e-4)): positive where the map fits
+    (lambda_L L < 1), negative where it does not."""
+    return -torch.log((lambda_L * L).clamp_min(GAUSSMI_MIN_LOSS))
+
+
+def gaussmi_logodds_update(logodds: torch.Tensor, c: torch.Tensor, sums: torch.Tensor, touch: torch.Tensor,
+                           lambda_T: float) -> torch.Tensor:
+    """New log-odds [N,4]: l + clip(clip(lambda_T c_ik S_i, +-100), +-10), then clip(+-10). The two
+    inner clips are its backend's and its `input_logodds`'; splats with `touch` False keep theirs."""
+    delta = (lambda_T * c * sums[:, None]).clamp(-100.0, 100.0).clamp(-GAUSSMI_CLAMP, GAUSSMI_CLAMP)
+    delta = torch.where(touch[:, None], delta, 0.0)
+    return (logodds + delta).clamp(-GAUSSMI_CLAMP, GAUSSMI_CLAMP)
 
 
 def gaussmi_gain(logodds: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
@@ -76,13 +104,19 @@ def gaussmi_gain(logodds: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
     return (c * (-torch.log(P))[None]).sum(-1)
 
 
-def revisit_discount(position: np.ndarray, yaw: float, visited: list[tuple[int, np.ndarray, float]],
-                     now: int) -> float:
-    """0.95^k for the most recent earlier view within 0.3 m and 10 deg (k = frames since + 1), else 0."""
-    for frame, p, y in reversed(visited):
+def revisit_discount(position: np.ndarray, yaw: float, visited: list[tuple[np.ndarray, float]]) -> float:
+    """GauSS-MI's `inPreviousVps`: 0 while at most 5 viewpoints were taken; else walk the stored
+    viewpoints from the second-newest back to the second-oldest with a discount starting at 0.95 and
+    multiplied by 0.95 per step, and return it at the first within 0.3 m and 10 deg yaw; 0 if none.
+    `visited` holds (position, yaw) in capture order, the newest (the current pose) last."""
+    if len(visited) <= GAUSSMI_FREE_VIEWS:
+        return 0.0
+    disc = GAUSSMI_DISCOUNT
+    for p, y in visited[-2:0:-1]:
         dyaw = abs((yaw - y + math.pi) % (2 * math.pi) - math.pi)
-        if np.linalg.norm(position - p) <= 0.3 and dyaw <= math.radians(10.0):
-            return 0.95 ** (now - frame + 1)
+        if np.linalg.norm(position - p) < 0.3 and dyaw < math.radians(10.0):
+            return disc
+        disc *= GAUSSMI_DISCOUNT
     return 0.0
 
 
@@ -93,30 +127,27 @@ class GaussMISelector(_Scoring):
     def __init__(self, cfg: ScenarioConfig) -> None:
         super().__init__(cfg)
         self.cfg = cfg
-        self.visited: list[tuple[int, np.ndarray, float]] = []
+        self.visited: list[tuple[np.ndarray, float]] = []
 
+    @torch.no_grad()
     def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
         b = self.cfg.baselines
         dev = mapper.device
         logodds = ensure_column(mapper, self.COLUMN, (4,))
-        self.visited.append((obs.index, np.asarray(obs.T_wc[:3, 3], float), yaw_of_camera(obs.T_wc)))
+        self.visited = (self.visited + [(np.asarray(obs.T_wc[:3, 3], float), yaw_of_camera(obs.T_wc))])[-GAUSSMI_KEPT_VIEWS:]
         if len(mapper.map) == 0:
             return {}
         sp = mapper.splats()
         T = float_tensor(obs.T_wc, dev)
         view = capture_view(mapper, obs)
         out = view.output
-        depth_obs = float_tensor(obs.depth, dev)[..., None]
-        valid = depth_obs[..., 0] > 0
-        L = gaussmi_loss_image(out.features[0], out.depth[0], float_tensor(obs.rgb, dev), depth_obs)
-        v = torch.where(valid, -torch.log((b.gaussmi_lambda_L * L).clamp_min(1e-4)), 0.0)
-        S = view.splat_sums(v)
-        cover = view.splat_sums(valid.float())
+        L = gaussmi_loss_image(out.features[0], out.depth[0] * out.alpha[0], float_tensor(obs.rgb, dev),
+                               float_tensor(obs.depth, dev)[..., None])
+        S = view.splat_sums(gaussmi_evidence(L, b.gaussmi_lambda_L))
+        touch = view.splat_sums(torch.ones_like(L)) >= GAUSSMI_MIN_WEIGHT
         c = direction_weights(sp["means"], T[None, :3, 3])[0]
-        delta = (b.gaussmi_lambda_T * c * S[:, None]).clamp(-100.0, 100.0)
-        delta = torch.where((cover >= 1.0)[:, None], delta, 0.0)
-        logodds[:] = (logodds + delta).clamp(-10.0, 10.0)
-        return {"updated": int((cover >= 1.0).sum())}
+        logodds[:] = gaussmi_logodds_update(logodds, c, S, touch, b.gaussmi_lambda_T)
+        return {"updated": int(touch.sum()), "negative_share": float((logodds < 0).any(-1).float().mean())}
 
     @torch.no_grad()
     def view_scores(self, mapper: OnlineMapper, poses: np.ndarray) -> torch.Tensor:
@@ -136,10 +167,8 @@ class GaussMISelector(_Scoring):
 
     def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         raw = self.view_scores(mapper, poses).numpy()
-        now = self.visited[-1][0] if self.visited else 0
-        disc = np.array([revisit_discount(T[:3, 3], yaw_of_camera(T), self.visited, now) for T in poses])
+        disc = np.array([revisit_discount(T[:3, 3], yaw_of_camera(T), self.visited) for T in poses])
         return raw * (1.0 - disc)
-
 
 # ---------------------------------------------------------------------------------- FisherRF
 def fisher_scores(H_cams: FisherDiag, H_train: FisherDiag, lam: float) -> torch.Tensor:

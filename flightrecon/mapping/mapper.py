@@ -223,7 +223,7 @@ class OnlineMapper:
         return p
 
     def render_capture(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> RenderedView:
-        """The map at a captured pose after mapping (color, depth, normal), kept with the graph that
+        """The map at a captured pose after mapping (color, alpha, depth, normal), kept with the graph that
         gives per-splat pixel sums: the one render of that pose the loop's consumers share."""
         p = self.splats()
         # inverted in float32 by torch, as the selectors' reliability update always did
@@ -231,7 +231,7 @@ class OnlineMapper:
         Kt = torch.as_tensor(np.asarray(K, np.float32), device=self.device)
         return render_view_with_sums(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], p["colors"],
                                      viewmat, Kt, width, height, near=self.near, far=self.far,
-                                     backend=self.cfg.backend)
+                                     outputs=("features", "alpha", "depth", "normal"), backend=self.cfg.backend)
 
     @torch.no_grad()
     def render_view(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int,

@@ -26,9 +26,13 @@ class RenderedView:
     features: Tensor
 
     def splat_sums(self, values: Tensor) -> Tensor:
-        """S [N] = sum_p values(p) w_i(p) for pixel values [H,W] (one backward; the graph is kept)."""
+        """S [N] = sum_p values(p) w_i(p) for pixel values [H,W] (one backward; the graph is kept).
+
+        `values` are taken as constants: values computed from this render (a loss image) would
+        otherwise carry its graph, and the backward would add sum_p F(p) dvalues(p)/df_i, a term
+        that is not a pixel sum and has either sign."""
         with torch.enable_grad():
-            (grad,) = torch.autograd.grad((self.output.features[0, ..., 0] * values).sum(), self.features,
+            (grad,) = torch.autograd.grad((self.output.features[0, ..., 0] * values.detach()).sum(), self.features,
                                           retain_graph=True)
         return grad[:, 0]
 
