@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from flightrecon import run_folder
+from flightrecon import provenance, run_folder
 from flightrecon.active.diagnosis import mi_split, move_kind
 from flightrecon.active.protocol import Observation
 from flightrecon.active.registry import make_selector
@@ -97,6 +97,7 @@ class Mission:
             free = room_free_space(rig.scene, rig.start)
             self.state.coverage = SurfaceCoverage(visible_surface(rig.scene, free, DIAGNOSIS_SURFACE_SAMPLES).points)
         self.live_viewer = False  # `fly --rerun`: stream the recording to a viewer as well
+        self.allow_code_change = False  # resume a run whose earlier frames ran other code (recorded)
         self.recorder = NullRecorder()
 
     # ------------------------------------------------------------------ run control
@@ -118,6 +119,7 @@ class Mission:
         budget = self.cfg.budget.frames
         self.run_dir.mkdir(parents=True, exist_ok=True)
         write_text(self.run_dir / run_folder.CONFIG, to_toml(self.cfg))
+        provenance.begin_segment(self.run_dir, self.state.frame, self.allow_code_change)
         if self.state.frame == 0:
             self._take_off()
         bar = _progress(budget, self.state.frame, self.progress)
@@ -348,6 +350,7 @@ class Mission:
         rec = self.state.records
         metrics = {
             "scenario": self.cfg.name, "method": self.cfg.selector.method, "seed": self.cfg.seed,
+            "code_states": provenance.code_states(self.run_dir),
             "frames": len(rec), "splats": len(self.mapper.map), "splats_pruned": self.mapper.pruned,
             "map_mb": (self.run_dir / run_folder.MAP).stat().st_size / 1e6,
             "flight_distance_m": self.state.flight_distance, "sim_time_s": self.flight.time,

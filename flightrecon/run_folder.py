@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 CONFIG = "config.toml"  # the resolved scenario of the run
+PROVENANCE = "provenance.json"  # what each flight segment ran with (flightrecon.provenance)
 CHECKPOINT = "checkpoint.pkl"  # the loop's state after the last frame (resume)
 FRAMES = "frames.csv"  # one row per frame: timings, counts, quality
 EVENTS = "events.log"

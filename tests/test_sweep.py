@@ -139,3 +139,41 @@ def test_ranking_over_frames_compares_the_evaluation_nearest_two_thirds_with_the
     assert ranking_over_frames(settled).same == {"PSNR": True, "D-L1": True, "F-score": True}
     assert ranking_over_frames([_record("gaussmi2d", "x", 0, {89: 1}), _record("random", "y", 0, {89: 1})]) is None
 
+
+
+def _table_record(method: str, scene: str, seed: int, psnr: float, code: list[str]) -> dict:
+    return {"dir": f"{scene}/{method}/seed{seed}", "method": method, "scene": scene, "seed": seed, "psnr": psnr,
+            "ms_per_candidate": 1.0, "ms_update": 1.0, "model_mb": 1.0, "s_per_frame": 1.0,
+            "checkpoints": {89: {"psnr": psnr, "depth_l1_cm": 1.0, "fscore": 0.9}},
+            "code_states": code, "cpus": ["cpu A"]}
+
+
+def test_overall_intervals_take_the_scene_as_the_unit_when_seeds_are_correlated(tmp_path):
+    """Two seeds per scene that agree closely: treating the 8 runs as independent would give a t-interval
+    about 1.5x narrower than the 4 scene means allow. The oracle is scipy's t-interval of the scene means."""
+    from scipy import stats
+
+    scene_level = {"a": 20.0, "b": 23.0, "c": 25.0, "d": 21.0}
+    recs = [_table_record("gaussmi2d", sc, k, v + 0.05 * k, ["c1"]) for sc, v in scene_level.items() for k in (0, 1)]
+    write_tables(recs, tmp_path)
+    row = next(r for r in _rows(tmp_path / "overall.csv") if r["Method"] == "gaussmi2d")
+    means = np.array([v + 0.025 for v in scene_level.values()])
+    half = stats.t.ppf(0.975, 3) * means.std(ddof=1) / 2
+    assert row["PSNR"] == f"{means.mean():.2f} ± {half:.2f}"
+    runs = np.array([r["psnr"] for r in recs])
+    naive = stats.t.ppf(0.975, 7) * runs.std(ddof=1) / np.sqrt(8)
+    assert half > 1.4 * naive  # the difference the unit makes here
+    caption = (tmp_path / "overall.md").read_text().splitlines()[0]
+    assert "the scene as the unit" in caption and "all runs flown at c1" in caption
+    assert "MIXED" not in (tmp_path / "summary.md").read_text()
+
+
+def test_tables_say_loudly_when_their_runs_mix_code_states(tmp_path):
+    recs = [_table_record("gaussmi2d", "a", 0, 20.0, ["c1"]), _table_record("random", "a", 0, 21.0, ["c1", "c2"]),
+            _table_record("gaussmi2d", "b", 0, 22.0, ["unstamped"]), _table_record("random", "b", 0, 23.0, ["c1"])]
+    write_tables(recs, tmp_path)
+    for name in ("overall.md", "paired.md", "per_scene.md", "efficiency.md"):
+        assert "MIXED CODE" in (tmp_path / name).read_text().splitlines()[0], name
+    summary = (tmp_path / "summary.md").read_text()
+    assert "**MIXED CODE" in summary and "- c1: 3 run(s)" in summary and "- unstamped: 1 run(s)" in summary
+    assert "resumed across a code change: a/random/seed0" in summary

@@ -21,6 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("scenario", nargs="?", default=None, help="scenario TOML path or name in scenarios/")
     p.add_argument("--resume", metavar="RUN_DIR", default=None,
                    help="continue a killed active run from its checkpoint (its saved config is used)")
+    p.add_argument("--allow-code-change", action="store_true",
+                   help="with --resume: continue a run whose earlier frames were flown with other code "
+                        "(refused otherwise; recorded in provenance.json)")
     p.add_argument("--survey", action="store_true", help="fly the scripted survey loop and write a dataset")
     p.add_argument("--out", default=None, help="output folder (default: <output.run_root>/<scenario>/<mode>/seed<k>)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
@@ -60,6 +63,7 @@ def _run_active(cfg: ScenarioConfig | None, out: Path, progress: bool, args: arg
 
     mission = Mission.resume(out, progress=progress) if cfg is None else Mission(cfg, out, progress=progress)
     mission.live_viewer = args.rerun
+    mission.allow_code_change = args.allow_code_change
     m = mission.run()
     if args.export_3dgs:
         from flightrecon.mapping.ply import save_map

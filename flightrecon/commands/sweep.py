@@ -28,6 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "(a part of a sweep; run again to continue)")
     p.add_argument("--retry-failed", action="store_true",
                    help="fly runs whose flight failed earlier on from their checkpoint (after fixing the cause)")
+    p.add_argument("--allow-code-change", action="store_true",
+                   help="resume killed runs even when their earlier frames ran other code (recorded in each "
+                        "run's provenance.json; the report then marks the tables as mixed)")
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local process pool, or a Ray cluster (--ray-address; default a local instance)")
     p.add_argument("--ray-address", default=None, help="address of a running Ray cluster")
@@ -47,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         raise FlightReconError("sweep: --seeds, --jobs and --max-runs must be at least 1")
     specs = plan_runs(args.scenario, args.scenes, args.methods, args.seeds, args.overrides, args.run_root)
     execute(specs, args.jobs, args.executor, args.ray_address, log=lambda s: print(s, flush=True),
-            max_runs=args.max_runs, retry_failed=args.retry_failed)
+            max_runs=args.max_runs, retry_failed=args.retry_failed, allow_code_change=args.allow_code_change)
     report = Path(args.report) if args.report else specs[0].run_dir.parents[2] / "report"
     recs = collect([s.run_dir for s in specs])
     failed = {str(s.run_dir): why for s in specs if (why := failure(s)) is not None}

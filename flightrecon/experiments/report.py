@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flightrecon import run_folder
+from flightrecon import provenance, run_folder
 from flightrecon.evaluation.intervals import mean_interval, paired_difference
 from flightrecon.fileio import atomic_path, write_text
 
@@ -86,6 +86,7 @@ def collect(run_dirs: list[Path]) -> list[dict]:
             series[f"eval_{key}"] = _snapshot_series(over, len(rows), ev, key)
         recs.append({
             "dir": d, "scene": d.parent.parent.name, "method": met["method"], "seed": met["seed"], **ev,
+            "code_states": provenance.code_states(d), "cpus": provenance.cpus(d),
             "ms_per_candidate": 1000 * sum(t for t, _ in scored) / n_cand if n_cand else math.nan,
             "ms_update": 1000 * met["mean_times_s"].get("t_select_update", math.nan),
             "s_per_frame": met["wall_time_s"] / max(1, met["frames"]), "frames": met["frames"],
@@ -163,6 +164,34 @@ def _methods(recs: list[dict]) -> list[str]:
     return sorted({r["method"] for r in recs}, key=lambda m: (m != REFERENCES[0], m))
 
 
+def code_states(recs: list[dict]) -> dict[str, int]:
+    """{code state: runs that ran it (a run resumed across a code change counts for each)}."""
+    counts: dict[str, int] = {}
+    for r in recs:
+        for state in r["code_states"]:
+            counts[state] = counts.get(state, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))
+
+
+def _code_note(recs: list[dict]) -> str:
+    """The caption's statement of the code its runs were flown with: loud when they mix states."""
+    states = code_states(recs)
+    mixed = len(states) > 1 or provenance.UNSTAMPED in states or any(len(r["code_states"]) > 1 for r in recs)
+    if not mixed:
+        return f"all runs flown at {next(iter(states))}"
+    return (f"MIXED CODE: these runs were flown with {len(states)} code state(s) "
+            f"({', '.join(f'{k}: {v} run(s)' for k, v in states.items())}; summary.md lists them)")
+
+
+def _scene_means(recs: list[dict], method: str, key: str) -> list[float]:
+    """One value per scene: the method's mean over that scene's seeds (the unit of the intervals)."""
+    by_scene: dict[str, list[float]] = {}
+    for r in recs:
+        if r["method"] == method:
+            by_scene.setdefault(r["scene"], []).append(_num(r.get(key)))
+    return [_mean(v) for v in by_scene.values()]
+
+
 def _write_table(out: Path, name: str, header: list[str], rows: list[list[str]], caption: str) -> list[Path]:
     md = "| " + " | ".join(header) + " |\n|" + "---|" * len(header) + "\n"
     md += "".join("| " + " | ".join(r) + " |\n" for r in rows)
@@ -200,14 +229,15 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
     methods = _methods(recs)
     scenes = sorted({r["scene"] for r in recs})
     seeds = sorted({r["seed"] for r in recs})
-    note = f"{len(scenes)} scene(s), {len(seeds)} seed(s)"
+    code = _code_note(recs)
+    note = f"{len(scenes)} scene(s), {len(seeds)} seed(s); {code}"
     rows = []
     for m in methods:
-        mine = [r for r in recs if r["method"] == m]
-        rows.append([m] + [mean_interval(_num(r.get(k)) for r in mine).format(dg) for k, _, _, dg in OVERALL])
+        rows.append([m] + [mean_interval(_scene_means(recs, m, k)).format(dg) for k, _, _, dg in OVERALL])
     paths = _write_table(out, "overall", ["Method"] + [h for _, h, _, _ in OVERALL], rows,
-                         f"Overall evaluation results (mean ± 95% interval over {note}; 'cov.': on pixels "
-                         "the map covers, alpha >= 0.5)")
+                         f"Overall evaluation results (mean over scenes ± 95% t-interval with the scene as the "
+                         f"unit: each scene's seeds are averaged first; {note}; 'cov.': on pixels the map "
+                         "covers, alpha >= 0.5)")
     for ours in [m for m in methods if m in REFERENCES]:
         rows = []
         for m in [m for m in methods if m != ours]:
@@ -224,7 +254,8 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
             rows.append([m, h] + [mean_interval(_by_run(recs, m, k, s).values()).format(3 if k == "fscore" else 2)
                                   for s in scenes])
     paths += _write_table(out, "per_scene", ["Method", "Metric"] + scenes, rows,
-                          f"Per-scene evaluation results (mean ± 95% interval over {len(seeds)} seed(s))")
+                          f"Per-scene evaluation results (mean ± 95% interval with the seed as the unit, over "
+                          f"{len(seeds)} seed(s); {code})")
     rows = []
     for m in methods:
         mine = [r for r in recs if r["method"] == m]
@@ -233,12 +264,12 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
                      _fmt(_mean(r["s_per_frame"] for r in mine), 2)])
     paths += _write_table(out, "efficiency", ["Method", "Per-candidate [ms]", "Selector update [ms]",
                                               "Model [MB]", "Wall time per frame [s]"], rows,
-                          f"Efficiency (mean over {note}; CPU, this machine)")
+                          f"Efficiency (mean over the runs of {note}; on the CPUs summary.md lists)")
     check = ranking_over_frames(recs)
     if check:
         paths += _write_table(out, "ranking", ["Metric", "Frames", "Ranking (best first, mean)"], check.rows,
                               f"Ranking over collected frames, over the {check.runs} (scene, seed) runs "
-                              "every method finished")
+                              f"every method finished; {code}")
     paths.append(_write_summary(out, recs, check, failed or {}))
     return paths
 
@@ -247,6 +278,17 @@ def _write_summary(out: Path, recs: list[dict], check: RankingCheck | None, fail
     """What the tables compare, how many runs they hold (and which flights failed, why), and whether
     the budget settles the ranking."""
     lines = ["# Sweep summary", "", SHARED_PIPELINE, ""]
+    states = code_states(recs)
+    if len(states) > 1 or provenance.UNSTAMPED in states:
+        lines += ["**MIXED CODE: the tables mix runs flown with different code (or with unrecorded code); "
+                  "their differences may come from the code, not only the methods.**", ""]
+    lines.append("Code states (commit, +dirty with a hash of the uncommitted changes) and the runs flown with each:")
+    lines += [f"- {k}: {v} run(s)" for k, v in states.items()]
+    across = [str(r["dir"]) for r in recs if len(r["code_states"]) > 1]
+    if across:
+        lines.append(f"- resumed across a code change: {', '.join(across)}")
+    cpus = sorted({c for r in recs for c in r["cpus"]})
+    lines += ["", f"CPUs: {', '.join(cpus)}", ""]
     for m in _methods(recs):
         mine = [r for r in recs if r["method"] == m]
         lines.append(f"- {m}: {len(mine)} finished run(s) on {len({r['scene'] for r in mine})} scene(s)")

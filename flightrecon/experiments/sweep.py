@@ -78,7 +78,7 @@ def failure(spec: RunSpec) -> str | None:
     return path.read_text().strip() if path.is_file() else None
 
 
-def run_one(spec: RunSpec, threads: int = 0) -> tuple[str, str]:
+def run_one(spec: RunSpec, threads: int = 0, allow_code_change: bool = False) -> tuple[str, str]:
     """Bring one run to 'done', or to 'failed' when its flight stops with an error (the reason goes
     to failed.txt); returns (run folder, what was done).
 
@@ -102,6 +102,7 @@ def run_one(spec: RunSpec, threads: int = 0) -> tuple[str, str]:
         try:
             mission = (Mission.resume(spec.run_dir, progress=False) if state == "resume"
                        else Mission(spec.config(), spec.run_dir, progress=False))
+            mission.allow_code_change = allow_code_change
             mission.run()
         except FlightReconError as exc:
             write_text(spec.run_dir / run_folder.FAILED, f"{exc}\n")
@@ -112,7 +113,8 @@ def run_one(spec: RunSpec, threads: int = 0) -> tuple[str, str]:
 
 
 def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_address: str | None = None,
-            log=print, max_runs: int | None = None, retry_failed: bool = False) -> list[tuple[str, str]]:
+            log=print, max_runs: int | None = None, retry_failed: bool = False,
+            allow_code_change: bool = False) -> list[tuple[str, str]]:
     """Run the specs; finished runs, and failed ones unless `retry_failed`, are skipped without
     starting a worker. With `max_runs`, only the first that many unfinished runs are brought to an
     end (one part of a sweep too long for one sitting; the next call continues with the rest)."""
@@ -131,22 +133,23 @@ def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_ad
     if not todo:
         return done
     if executor == "ray":
-        return done + _execute_ray(todo, threads, ray_address, log)
+        return done + _execute_ray(todo, threads, ray_address, log, allow_code_change)
     if jobs <= 1:
         out = []
         for s in todo:
-            out.append(run_one(s))
+            out.append(run_one(s, 0, allow_code_change))
             log(f"{out[-1][0]}: {out[-1][1]}")
         return done + out
     out = []
     with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
-        for r in pool.map(run_one, todo, [threads] * len(todo)):
+        for r in pool.map(run_one, todo, [threads] * len(todo), [allow_code_change] * len(todo)):
             out.append(r)
             log(f"{r[0]}: {r[1]}")
     return done + out
 
 
-def _execute_ray(todo: list[RunSpec], threads: int, address: str | None, log) -> list[tuple[str, str]]:
+def _execute_ray(todo: list[RunSpec], threads: int, address: str | None, log,
+                 allow_code_change: bool) -> list[tuple[str, str]]:
     try:
         import ray
     except ImportError:
@@ -157,7 +160,7 @@ def _execute_ray(todo: list[RunSpec], threads: int, address: str | None, log) ->
     try:
         task = ray.remote(num_cpus=1)(run_one)
         out = []
-        for r in ray.get([task.remote(s, threads) for s in todo]):
+        for r in ray.get([task.remote(s, threads, allow_code_change) for s in todo]):
             out.append(tuple(r))
             log(f"{r[0]}: {r[1]}")
         return out
