@@ -7,4 +7,3 @@ void bind_rasterizer(pybind11::module_& m);
 void bind_splat_axes(pybind11::module_& m);
 void bind_optimizer(pybind11::module_& m);
 void bind_image_ops(pybind11::module_& m);
-void bind_voxel_rays(pybind11::module_& m);

@@ -6,5 +6,4 @@ PYBIND11_MODULE(TORCH_EXTENSION_NAME, m) {
   bind_splat_axes(m);
   bind_optimizer(m);
   bind_image_ops(m);
-  bind_voxel_rays(m);
 }

@@ -188,7 +188,8 @@ class ReliabilityConfig:
 
 @dataclass(frozen=True)
 class SelectorConfig:
-    method: str = _f("gaussmi2d", doc="view selector: gaussmi2d, gaussmi2d_explore, gaussmi, fisherrf, activegs, random "
+    method: str = _f("gaussmi2d", doc="view selector: gaussmi2d, gaussmi2d_explore, gaussmi, fisherrf, activegs, "
+                      "activegs_native (ActiveGS with its own candidates), random "
                       "(and the ablations gaussmi2d_now, gaussmi2d_onesided, gaussmi2d_color)")
     scoring_width: int = _f(160, 1, 8192)
     scoring_height: int = _f(120, 1, 8192)
@@ -241,7 +242,8 @@ class BaselinesConfig:
     gaussmi_lambda_T: float = _f(10.0, 0.0, 1e6, doc="GauSS-MI evidence weight")
     fisherrf_lambda: float = _f(1e-6, 0.0, 1e3, doc="FisherRF Hessian regularizer")
     activegs_voxel: float = _f(0.2, 0.02, 2.0, doc="ActiveGS exploration voxel size (m)")
-    activegs_extent: list = _f([16.0, 16.0, 5.0], doc="ActiveGS voxel grid size around the first camera (m)")
+    activegs_extent: list = _f([16.0, 16.0, 5.0], doc="ActiveGS voxel grid size around the first camera (m), "
+                               "only for a selector driven without a scene; in a flight its grid spans the scene")
     activegs_path_weight: float = _f(0.5, 0.0, 100.0, doc="ActiveGS path-length term weight")
 
 

@@ -91,6 +91,8 @@ class Mission:
         self.planner = Planner(cfg, rig.workspace, rig.scene.trimesh, rig.start)
         self.mapper = OnlineMapper(cfg.mapper, near=cfg.camera.near, far=cfg.camera.far, seed=cfg.seed)
         self.selector = make_selector(cfg)
+        if hasattr(self.selector, "attach_scene"):  # a selector that maps the scene's box (ActiveGS)
+            self.selector.attach_scene(rig.scene.bounds)
         self.evaluation = rig.evaluation_set()
         self.state = MissionState()
         if cfg.output.diagnose:
@@ -224,6 +226,9 @@ class Mission:
         if self.state.frame + 1 < self.cfg.budget.initial_views:
             step = 2 * math.pi / self.cfg.budget.initial_views
             results = self.planner.check(start, s.position[None], np.array([s.yaw + step]))
+        elif hasattr(self.selector, "propose"):  # the selector's own candidates (activegs_native)
+            positions, yaws = self.selector.propose(self.mapper, s.position.copy(), float(s.yaw), self.state.frame)
+            results = self.planner.check(start, positions, yaws) if len(positions) else []
         else:
             results = self.planner.check_library(start)
         row["t_plan"] = time.perf_counter() - t

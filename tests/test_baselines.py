@@ -216,87 +216,137 @@ def test_activegs_confidence_follows_its_update():
     np.testing.assert_allclose(sel.confidence(m).numpy(), conf, rtol=1e-4, atol=1e-6)
     assert n_obs.max() == 2
 
-    # exploitation utility: mean over pixels of (1 - C) D / 5 at quarter resolution
+    # utilities as its planning/confidence.py: exploitation mean((1 - C) D / 5 m) with C = 1 beyond
+    # the range and D = 2.5 m where the map renders no surface; exploration the unexplored voxel
+    # centers seen in front of the rendered depth (no surface: far), over all voxels of the map
+    sel.attach_scene(np.array([[-1.0, -2.0, 0.0], [3.0, 2.0, 2.4]]))
+    sel.voxels = None
+    sel.observe_space(_obs(cfg, m, views[0]).depth, K, views[0])
     Ks = sel.K_score.numpy().astype(float)
     util = sel.utilities(m, POSES)
-    explore = np.array([sel.voxels.visible_unexplored(T[None], Ks, sel.width, sel.height)[0] for T in POSES])
+    vm = sel.voxels
+    centers, unexplored = vm.centers.numpy(), vm.unexplored.numpy()
+    counts = []
     for j, T in enumerate(POSES):
-        out = m.render_view(T, Ks, sel.width, sel.height, outputs=("alpha", "depth"))
+        out = m.render_view(T, Ks, sel.width, sel.height, outputs=("depth",))
         ws = _weights(m, T, Ks, sel.width, sel.height).numpy()
         Cp = np.einsum("nhw,n->hw", ws, conf)
-        D = out.depth[0, ..., 0].numpy()
-        surface = (out.alpha[0, ..., 0].numpy() > 0.5) & (D <= 5)
-        Cp = np.where(surface, np.clip(Cp, 0, 1), 1.0)
-        exploit = ((1 - Cp) * D / 5).mean()
-        assert util[j] == pytest.approx(1000 * explore[j] / sel.voxels.size + exploit, rel=1e-4, abs=1e-7)
+        D = out.depth[0, ..., 0].double().numpy()
+        assert (D < 0.001).any() and (D > 0.001).any()  # pixels with and without surface
+        exploit = ((1 - np.where(D > 5, 1.0, Cp)) * np.where(D < 0.001, 2.5, D) / 5).mean()
+        depth_far = np.clip(np.where(D < 0.001, 1e4, D), 0.001, 5.0)
+        seen = 0
+        for x in centers[unexplored]:
+            c = T[:3, :3].T @ (x - T[:3, 3])
+            if c[2] <= 0:
+                continue
+            u, v = math.floor(Ks[0, 0] * c[0] / c[2] + Ks[0, 2]), math.floor(Ks[1, 1] * c[1] / c[2] + Ks[1, 2])
+            if 0 <= u < sel.width and 0 <= v < sel.height and depth_far[v, u] > c[2]:
+                seen += 1
+        counts.append(seen)
+        assert util[j] == pytest.approx(1000 * seen / len(centers) + exploit, rel=1e-4, abs=1e-7)
+    assert counts[0] == 0 < counts[1]  # the observed view left nothing unexplored in its own frustum
 
 
-def test_activegs_exploration_counts_unexplored_voxels_in_front_of_a_wall():
-    vm = VoxelMap(np.zeros(3), [6.0, 6.0, 2.0], 0.2)
+def test_activegs_voxel_map_integrates_a_frame_as_its_code():
+    """+w where a measured point lies, -w at other voxel centers in the frustum before the measured
+    depth (0 = no return: the range's far end), w = 2.8 clip(1 - 0.1 d, 0, 1); both leave unexplored."""
+    vm = VoxelMap(np.array([-1.0, -2.0, 0.0]), np.array([5.0, 2.0, 2.0]), 0.2)
+    assert tuple(vm.dims) == (30, 20, 10) and vm.size_total == 6000
+    K = intrinsics(16, 12, 70.0)
+    T = camera_pose(np.array([0.0, 0.1, 1.0]), 0.1)
+    rays = pixel_rays(16, 12, K)
+    depth = np.full((12, 16), 2.5, np.float32)
+    depth[:, :3] = 0.0  # no return on the left
+    depth[5:8, 8:12] = 1.3  # a box in front
+    vm.integrate(depth, K, T)
+    hit = set()
+    for v in range(12):
+        for u in range(16):
+            if depth[v, u] > 0:
+                p = T[:3, 3] + T[:3, :3] @ (rays[v, u] * depth[v, u])
+                hit.add(tuple(np.floor((p - vm.lo) / vm.size).astype(int)))
+    expect = np.zeros(vm.size_total)
+    touched = np.zeros(vm.size_total, bool)
+    for f, x in enumerate(vm.centers.numpy()):
+        ijk = np.unravel_index(f, vm.dims)
+        w = 2.8 * min(max(1 - 0.1 * np.linalg.norm(x - T[:3, 3]), 0), 1)
+        if ijk in hit:
+            expect[f], touched[f] = w, True
+            continue
+        c = T[:3, :3].T @ (x - T[:3, 3])
+        if c[2] > 0:
+            u, v = math.floor(K[0, 0] * c[0] / c[2] + K[0, 2]), math.floor(K[1, 1] * c[1] / c[2] + K[1, 2])
+            if 0 <= u < 16 and 0 <= v < 12 and (depth[v, u] if depth[v, u] > 0 else 5.0) > c[2]:
+                expect[f], touched[f] = -w, True
+    np.testing.assert_allclose(vm.logodds.numpy(), expect, atol=1e-9)
+    np.testing.assert_array_equal(~vm.unexplored.numpy(), touched)
+    assert len(hit) > 5 and (expect < 0).sum() > 50
+    for _ in range(3):
+        vm.integrate(depth, K, T)
+    assert vm.logodds.abs().max() == 4.5 and vm.occupied.any() and vm.free.any()
+
+
+def test_activegs_exploration_sees_nothing_behind_it_or_outside_its_view():
+    vm = VoxelMap(np.zeros(3), np.array([4.0, 4.0, 2.0]), 0.2)
     K = intrinsics(8, 6, 60.0)
-    T = camera_pose(np.array([-2.0, 0.0, 0.0]), 0.0)  # looks along +x
-    before = vm.visible_unexplored(T[None], K, 8, 6)[0]
-    # a wall of occupied voxels 1 m ahead (x in [-1.0, -0.8)) blocks everything behind it
-    ijk = np.stack(np.meshgrid(np.arange(vm.dims[0]), np.arange(vm.dims[1]), np.arange(vm.dims[2]), indexing="ij"), -1)
-    centers = vm.origin + (ijk + 0.5) * vm.voxel
-    wall = (centers[..., 0] > -1.0) & (centers[..., 0] < -0.8)
-    vm.logodds[torch.from_numpy(wall.reshape(-1))] = 4.5
-    vm.touched[torch.from_numpy(wall.reshape(-1))] = True
-    after = vm.visible_unexplored(T[None], K, 8, 6)[0]
-    # independent count: distinct never-touched voxels hit by samples before the wall (x < -1.0)
-    rays = np.stack(np.meshgrid((np.arange(8) + 0.5 - K[0, 2]) / K[0, 0], (np.arange(6) + 0.5 - K[1, 2]) / K[1, 1]), -1)
-    dirs_c = np.concatenate([rays.reshape(-1, 2), np.ones((48, 1))], 1)
-    dirs = dirs_c / np.linalg.norm(dirs_c, axis=1, keepdims=True) @ T[:3, :3].T
-    ts = (np.arange(0.5, 50) * 0.1)
-    pts = T[:3, 3] + dirs[:, None, :] * ts[None, :, None]
-    pts = pts[pts[..., 0] < -1.0]
-    keys = {tuple(k) for k in np.floor((pts - vm.origin) / 0.2).astype(int)}
-    assert after == len(keys)
-    assert before > after > 0
-    vm.touched[:] = True
-    assert vm.visible_unexplored(T[None], K, 8, 6)[0] == 0
-
-
-def _unexplored_torch(vm: VoxelMap, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
-    """The exploration count as one torch statement: every sample of every ray, then distinct voxels."""
-    T = torch.as_tensor(np.asarray(T_wc, float))
-    rays = torch.nn.functional.normalize(torch.as_tensor(pixel_rays(width, height, K).reshape(-1, 3)), dim=-1)
-    dirs = torch.einsum("cij,rj->cri", T[:, :3, :3], rays)
-    pts = T[:, None, None, :3, 3] + dirs[:, :, None, :] * vm.ray_samples()[None, None, :, None]  # [C,R,S,3]
-    idx = vm.index(pts)
-    safe = idx.clamp_min(0)
-    occ = (idx >= 0) & (vm.logodds[safe] >= vm.OCC)
-    blocked = (torch.cumsum(occ.int(), -1) - occ.int()) > 0
-    unexplored = (idx >= 0) & ~blocked & ~vm.touched[safe]
-    cam = torch.arange(T.shape[0])[:, None, None].expand_as(idx)
-    keys = torch.unique(cam[unexplored] * vm.size + idx[unexplored])
-    return torch.bincount(keys // vm.size, minlength=T.shape[0]).numpy()
-
-
-def test_activegs_exploration_kernel_equals_its_torch_statement():
-    rng = np.random.default_rng(3)
-    vm = VoxelMap(np.array([0.3, -0.2, 1.1]), [6.0, 5.0, 2.4], 0.2)
-    vm.touched[:] = torch.from_numpy(rng.random(vm.size) < 0.5)
-    vm.logodds[:] = torch.where(vm.touched, torch.from_numpy(rng.uniform(-4.5, 4.5, vm.size)).float(), 0.0)
-    vm.logodds[7] = float(np.float32(vm.OCC))  # exactly at the occupied threshold
-    vm.touched[7] = True
-    K = intrinsics(40, 30, 90.0)
-    poses = [camera_pose(rng.uniform([-2.5, -2, 0.2], [2.5, 2, 2.2]), rng.uniform(-np.pi, np.pi)) for _ in range(20)]
-    poses.append(camera_pose(np.array([-6.0, 0.3, 1.0]), 0.0))  # outside the grid, its rays enter it
-    poses.append(camera_pose(np.array([30.0, 0.0, 1.0]), 0.0))  # outside, looking away: sees nothing
+    into = camera_pose(np.array([-3.0, 2.0, 1.0]), 0.0)  # outside the box, looking into it
+    away = camera_pose(np.array([-3.0, 2.0, 1.0]), math.pi)  # looking away from it
     nan_pose = camera_pose(np.zeros(3), 0.0)
     nan_pose[0, 3] = np.nan
-    poses.append(nan_pose)
-    poses = np.stack(poses)
-    got = vm.visible_unexplored(poses, K, 40, 30)
-    np.testing.assert_array_equal(got, _unexplored_torch(vm, poses, K, 40, 30))
-    assert (got[:20] > 0).mean() > 0.5 and got[-3] > 0 and got[-2] == 0 and got[-1] == 0
+    depth = torch.zeros(3, 6, 8)  # no surface anywhere: far
+    got = vm.visible_unexplored(np.stack([into, away, nan_pose]), K, depth)
+    assert got[0] > 0 and got[1] == 0 and got[2] == 0
+    near = vm.visible_unexplored(into[None], K, torch.full((1, 6, 8), 3.5))[0]  # a surface 3.5 m ahead
+    assert 0 < near < got[0]
+    vm.unexplored[:] = False
+    assert vm.visible_unexplored(into[None], K, depth[:1])[0] == 0
 
 
-def test_activegs_combination_and_path_term():
+def test_activegs_combination_path_term_and_no_utility():
     u = np.array([2.0, 1.0, 1.0])
     L = np.array([1.0, 1.0, 2.0])
     np.testing.assert_allclose(activegs_combine(u, L, 0.5), u / 4 - 0.5 * L / 4)
+    blind = activegs_combine(np.zeros(3), L, 0.5, np.random.default_rng(1))  # its cal_view_scores: random
+    np.testing.assert_array_equal(blind, np.random.default_rng(1).random(3))
+
+
+def test_activegs_native_proposes_its_views_around_regions_of_interest():
+    """Against the geometry its generator promises: region views 0.3-2 m from a region, looking at it,
+    at free voxel centers 0.3 m clear of occupied ones; random views within 0.5 m; 100 in all."""
+    from flightrecon.active.activegs_native import ActiveGSNative, free_with_margin
+
+    cfg = _cfg("activegs_native")
+    m = _mapper(cfg)
+    sel = make_selector(cfg)
+    assert isinstance(sel, ActiveGSNative)
+    sel.attach_scene(np.array([[-1.0, -2.0, 0.0], [3.0, 2.0, 2.4]]))
+    c = cfg.camera
+    K = intrinsics(c.width, c.height, c.hfov_deg)
+    here = np.array([0.0, 0.1, 1.2])
+    T = camera_pose(here, 0.0)
+    sel.observe(m, _obs(cfg, m, T))
+    pos, yaw = sel.propose(m, here, 0.0, frame=4)
+    assert len(pos) == len(yaw) == 100
+    vm = sel.voxels
+    free = free_with_margin(vm)
+    centers = vm.centers.numpy()
+    idx = vm.index(torch.as_tensor(pos)).numpy()
+    assert (idx >= 0).all() and free[idx].all()
+    np.testing.assert_allclose(centers[idx], pos)
+    occupied = centers[vm.occupied.numpy()]
+    assert len(occupied) and np.linalg.norm(pos[:, None] - occupied[None], axis=-1).min() > 0.3 - 1e-9
+    far = np.linalg.norm(pos - here, axis=1) > 0.5 + 1e-9
+    assert far.sum() >= 30  # the region views come first and are at least 30 here
+    assert far[:30].all()
+    unexplored = vm.unexplored.numpy()
+    for p, y in zip(pos[far], yaw[far]):  # each looks at a region 0.3-2 m away within its heading
+        d = centers - p
+        dist = np.linalg.norm(d, axis=1)
+        ahead = (dist >= 0.3 - 1e-9) & (dist <= 2.0 + 1e-9) & (np.abs(np.arctan2(d[:, 1], d[:, 0]) - y) < 1e-6)
+        assert ahead.any()
+    assert np.array_equal(sel.propose(m, here, 0.0, frame=4)[0], pos)  # seeded by the frame
+    assert unexplored.any()
 
 
 def test_ablations_change_exactly_their_switch():

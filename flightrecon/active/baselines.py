@@ -15,14 +15,12 @@ so `reliable_share` is 0 and the stopping rule never stops them.
   rasterizer's squared-contribution diagonal Hessian (position, color, scale, opacity); H_train
   sums over all frames collected so far and is recomputed at each selection (one view is chosen
   per step, so greedy batch acquisition reduces to the argmax). Both at the scoring resolution.
-- `activegs` (Jin et al., RA-L 2025): surfel confidence, a 0.2 m occupancy voxel map and its
-  exploration utility, the confidence-weighted exploitation utility, and the path-length term.
-  Its own pitch-free candidate generator (regions of interest + random) is replaced by our
-  planner's library (a quadrotor with a fixed camera cannot fly pitch); the path length is the
-  planned trajectory's length when the loop passes it (`lengths=`), else the straight-line distance
-  from the last captured camera, and "all voxels" is the fixed grid `baselines.activegs_extent`
-  centered on the first camera. A splat counts as seen in a view when its total blend weight over
-  the image exceeds 0.03 and it faces the camera.
+- `activegs` (Jin et al., RA-L 2025): surfel confidence, a 0.2 m voxel map over the scene's box
+  with visibility by projected voxel centers, the exploration utility (unexplored voxels in front of
+  the rendered map), the confidence-weighted exploitation utility (a pixel without surface is worth
+  0.5), and the path-length term, on our shared candidate library; the path length is the planned
+  trajectory's. `activegs_native` (active/activegs_native.py) flies it with its own candidates.
+  docs/baselines.md lists what follows its public code and where it departs.
 """
 
 from __future__ import annotations
@@ -224,83 +222,104 @@ def surfel_confidence(n_obs: torch.Tensor, v_sum: torch.Tensor, S: torch.Tensor)
 
 
 def occupancy_weight(distance: torch.Tensor) -> torch.Tensor:
-    """ActiveGS's log-odds step 2.8 clip(1 - 0.1 d, 0, 1) of a measurement at range d."""
+    """ActiveGS's log-odds step 2.8 clip(1 - 0.1 d, 0, 1) of a voxel at distance d from the camera."""
     return 2.8 * (1 - 0.1 * distance).clamp(0, 1)
 
 
 class VoxelMap:
-    """ActiveGS's coarse occupancy grid: log-odds in [-4.5, 4.5], occupied at P >= 0.8, free at
-    P <= 0.2, unexplored where no ray ever touched; a fixed box of `extent` around `center`."""
+    """ActiveGS's voxel map over its scene's bounding box (mapping/voxel_map.py of its code): voxel
+    centers on a grid of `voxel` (the box split into whole voxels, each axis its own size), log-odds in
+    [-4.5, 4.5], occupied at P >= 0.8, free at P <= 0.2, unexplored until a depth frame's frustum
+    reached the voxel. Visibility is by projecting voxel centers, as there: a center is seen when it
+    projects into the image in front of the camera and nearer than the depth at its pixel."""
 
     OCC = math.log(0.8 / 0.2)
+    FREE = math.log(0.2 / 0.8)
 
-    def __init__(self, center: np.ndarray, extent: list, voxel: float) -> None:
-        self.voxel = float(voxel)
-        self.dims = np.maximum(1, np.ceil(np.asarray(extent, float) / voxel).astype(int))
-        self.origin = np.asarray(center, float) - 0.5 * self.dims * voxel
-        n = int(np.prod(self.dims))
-        self.logodds = torch.zeros(n)
-        self.touched = torch.zeros(n, dtype=torch.bool)
+    def __init__(self, lo: np.ndarray, hi: np.ndarray, voxel: float) -> None:
+        self.lo = np.asarray(lo, float)
+        extent = np.asarray(hi, float) - self.lo
+        self.dims = np.maximum(1, np.ceil(extent / voxel - 1e-9).astype(int))
+        self.size = extent / self.dims
+        ijk = np.stack(np.meshgrid(*[np.arange(d) for d in self.dims], indexing="ij"), -1).reshape(-1, 3)
+        self.centers = torch.as_tensor(self.lo + (ijk + 0.5) * self.size)
+        self.logodds = torch.zeros(len(self.centers), dtype=torch.float64)
+        self.unexplored = torch.ones(len(self.centers), dtype=torch.bool)
+
+    @property
+    def size_total(self) -> int:
+        """All voxels of the map: the denominator of the exploration utility."""
+        return len(self.centers)
 
     def index(self, points: torch.Tensor) -> torch.Tensor:
-        """Flat voxel index of world points [...,3]; -1 outside the grid."""
-        ijk = torch.floor((points.double() - torch.as_tensor(self.origin)) / self.voxel).long()
+        """Flat voxel index of world points [...,3]; -1 outside the box."""
+        ijk = torch.floor((points.double() - torch.as_tensor(self.lo)) / torch.as_tensor(self.size)).long()
         dims = torch.as_tensor(self.dims)
         inside = ((ijk >= 0) & (ijk < dims)).all(-1)
         flat = (ijk[..., 0] * dims[1] + ijk[..., 1]) * dims[2] + ijk[..., 2]
         return torch.where(inside, flat, torch.full_like(flat, -1))
 
-    def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, stride: int = 4) -> None:
-        """One depth frame (every `stride`-th pixel): +w at each ray's end voxel, -w along the ray."""
-        rays = torch.as_tensor(pixel_rays(depth.shape[1], depth.shape[0], K)[::stride, ::stride].reshape(-1, 3))
-        d = torch.as_tensor(np.asarray(depth, float)[::stride, ::stride].reshape(-1))
-        ok = d > 0
-        rays, d = rays[ok], d[ok]
-        R, c = torch.as_tensor(T_wc[:3, :3]), torch.as_tensor(T_wc[:3, 3])
-        dirs = rays @ R.T  # world, z-depth 1
-        dist = d * dirs.norm(dim=-1)
-        w = occupancy_weight(dist)
-        end = self.index(c + dirs * d[:, None])
-        steps = torch.arange(0.5, float(d.max()) / (self.voxel / 2) if len(d) else 0.5) * (self.voxel / 2)
-        frac = steps[None, :] / dist[:, None].clamp_min(1e-9)  # along the ray, in units of its length
-        free_pts = c + (dirs * d[:, None])[:, None, :] * frac[..., None]
-        before = steps[None, :] < (dist[:, None] - self.voxel / 2)
-        free = self.index(free_pts)
-        wf = w[:, None].expand_as(free)
-        m = before & (free >= 0)
-        delta = torch.zeros_like(self.logodds, dtype=torch.float64)
-        free_w = torch.zeros_like(delta).scatter_reduce(0, free[m], wf[m], "amax", include_self=True)
-        occ_w = torch.zeros_like(delta).scatter_reduce(0, end[end >= 0], w[end >= 0], "amax", include_self=True)
-        delta = torch.where(occ_w > 0, occ_w, -free_w)
-        self.touched |= (occ_w > 0) | (free_w > 0)
-        self.logodds = (self.logodds + delta.float()).clamp(-4.5, 4.5)
+    @staticmethod
+    def seen_in_front(centers: torch.Tensor, T_wc: torch.Tensor, K: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        """[C,M] bool: voxel centers [M,3] that project into camera c's image (T_wc [C,4,4], K [3,3],
+        depth [C,H,W] in meters) in front of it and nearer than the depth at their pixel."""
+        H, W = depth.shape[-2:]
+        R, t = T_wc[:, :3, :3], T_wc[:, :3, 3]
+        cam = torch.einsum("cji,cmj->cmi", R, centers[None] - t[:, None])  # R^T (x - t)
+        z = cam[..., 2]
+        zs = torch.where(z > 0, z, torch.ones_like(z))
+        u = torch.floor(K[0, 0] * cam[..., 0] / zs + K[0, 2]).long()
+        v = torch.floor(K[1, 1] * cam[..., 1] / zs + K[1, 2]).long()
+        inside = (z > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        flat = torch.where(inside, v * W + u, torch.zeros_like(u))
+        d = torch.gather(depth.reshape(len(T_wc), -1), 1, flat)
+        return inside & (d > z)
 
-    def visible_unexplored(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
-        """Unexplored voxels seen from each camera T_wc [C,4,4]: along its pixel rays (at the given
-        resolution, sampled every half voxel) up to 5 m, before the first occupied voxel. Returns
-        counts [C]. The ray march is the extension's (csrc/voxel_rays.cpp)."""
+    def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> None:
+        """One depth frame (0 = no return, taken as the range's far end): voxels holding a measured
+        point +w, other voxels in the frustum before the measured depth -w, w = occupancy_weight."""
+        D = torch.as_tensor(np.asarray(depth, float))
         T = torch.as_tensor(np.asarray(T_wc, float))
-        rays = torch.nn.functional.normalize(torch.as_tensor(pixel_rays(width, height, K).reshape(-1, 3)), dim=-1)
-        dirs = torch.einsum("cij,rj->cri", T[:, :3, :3], rays)  # [C,R,3]
-        return load_extension().count_unexplored(
-            dirs.double(), T[:, :3, 3].double(), self.ray_samples().double(), torch.as_tensor(self.origin),
-            torch.as_tensor(self.dims, dtype=torch.int64), self.voxel, self.logodds >= self.OCC,
-            self.touched).numpy()
+        H, W = D.shape
+        rays = torch.as_tensor(pixel_rays(W, H, np.asarray(K, float)))
+        valid = D > 0
+        points = T[:3, 3] + (rays[valid] * D[valid][:, None]) @ T[:3, :3].T
+        hit_idx = self.index(points)
+        hit = torch.zeros_like(self.unexplored)
+        hit[hit_idx[hit_idx >= 0]] = True
+        passed = self.seen_in_front(self.centers, T[None], torch.as_tensor(np.asarray(K, float)),
+                                    torch.where(valid, D, torch.full_like(D, EXPLORE_RANGE))[None])[0] & ~hit
+        w = occupancy_weight((self.centers - T[:3, 3]).norm(dim=-1))
+        self.logodds = (self.logodds + torch.where(hit, w, 0.0) - torch.where(passed, w, 0.0)).clamp(-4.5, 4.5)
+        self.unexplored &= ~(hit | passed)
 
-    def ray_samples(self) -> torch.Tensor:
-        """Distances along a ray at which the utility samples the grid: every half voxel to 5 m."""
-        return torch.arange(0.5, EXPLORE_RANGE / (self.voxel / 2)) * (self.voxel / 2)
+    def visible_unexplored(self, T_wc: np.ndarray, K: np.ndarray, depth: torch.Tensor) -> np.ndarray:
+        """Unexplored voxels [C] seen from cameras T_wc [C,4,4] whose rendered depth [C,H,W] is given:
+        no surface (depth < 0.001) reads as far, every depth clamped to the range [near 0.001, 5 m]."""
+        d = torch.where(depth < 0.001, torch.full_like(depth, 1e4), depth).clamp(0.001, EXPLORE_RANGE).double()
+        todo = self.centers[self.unexplored]
+        if len(todo) == 0:
+            return np.zeros(len(T_wc))
+        seen = self.seen_in_front(todo, torch.as_tensor(np.asarray(T_wc, float)), torch.as_tensor(np.asarray(K, float)), d)
+        return seen.sum(1).double().numpy()
 
     @property
-    def size(self) -> int:
-        return int(self.logodds.numel())
+    def free(self) -> torch.Tensor:
+        return self.logodds <= self.FREE
+
+    @property
+    def occupied(self) -> torch.Tensor:
+        return self.logodds >= self.OCC
 
 
-def activegs_combine(utility: np.ndarray, lengths: np.ndarray, path_weight: float) -> np.ndarray:
-    """U / sum U - path_weight * L / sum L (a zero sum leaves its term out)."""
-    u = utility / utility.sum() if utility.sum() > 0 else np.zeros_like(utility)
+def activegs_combine(utility: np.ndarray, lengths: np.ndarray, path_weight: float,
+                     rng: np.random.Generator | None = None) -> np.ndarray:
+    """U / sum U - path_weight * L / sum L; when every utility is 0, random scores (its
+    cal_view_scores); a zero length sum leaves the path term out."""
+    if not utility.sum() > 0:
+        return (rng or np.random.default_rng(0)).random(len(utility))
     p = lengths / lengths.sum() if lengths.sum() > 0 else np.zeros_like(lengths)
-    return u - path_weight * p
+    return utility / utility.sum() - path_weight * p
 
 
 class ActiveGSSelector(_Scoring):
@@ -312,17 +331,27 @@ class ActiveGSSelector(_Scoring):
         super().__init__(cfg, max(1, c.width // 4), max(1, c.height // 4))  # ActiveGS: quarter resolution
         self.cfg = cfg
         self.voxels: VoxelMap | None = None
+        self.bounds: np.ndarray | None = None  # the scene's box (2,3), set by the loop (`attach_scene`)
         self.last_center: np.ndarray | None = None
+        self.rng = np.random.default_rng([cfg.seed, 7919])
+
+    def attach_scene(self, bounds: np.ndarray) -> None:
+        """The scene's bounding box (2,3): ActiveGS's voxel map spans its scene."""
+        self.bounds = np.asarray(bounds, float)
 
     def confidence(self, mapper: OnlineMapper) -> torch.Tensor:
         return surfel_confidence(ensure_column(mapper, "ags_nobs", ()), ensure_column(mapper, "ags_vsum", (3,)),
                                  ensure_column(mapper, "ags_S", ()))
 
     def observe_space(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> None:
-        """Integrate one depth frame into the voxel map (the first frame places the grid)."""
+        """Integrate one depth frame into the voxel map (made on the first frame: over the scene's box,
+        or, for a selector driven without a scene, `baselines.activegs_extent` around the camera)."""
         b = self.cfg.baselines
         if self.voxels is None:
-            self.voxels = VoxelMap(T_wc[:3, 3], b.activegs_extent, b.activegs_voxel)
+            if self.bounds is None:
+                half = 0.5 * np.asarray(b.activegs_extent, float)
+                self.bounds = np.stack([T_wc[:3, 3] - half, T_wc[:3, 3] + half])
+            self.voxels = VoxelMap(self.bounds[0], self.bounds[1], b.activegs_voxel)
         self.voxels.integrate(depth, K, T_wc)
         self.last_center = np.asarray(T_wc[:3, 3], float)
 
@@ -349,30 +378,36 @@ class ActiveGSSelector(_Scoring):
 
     @torch.no_grad()
     def utilities(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
-        """U = 1000 U_explore + U_exploit per candidate (before normalization and path term)."""
+        """U = 1000 U_explore + U_exploit per candidate (before normalization and path term), from one
+        render per candidate at quarter resolution (its planning/confidence.py)."""
         K = self.K_score.numpy().astype(float)
-        explore = np.zeros(len(poses))
-        if self.voxels is not None:
-            for s in range(0, len(poses), 16):
-                explore[s:s + 16] = self.voxels.visible_unexplored(poses[s:s + 16], K, self.width, self.height)
-            explore /= self.voxels.size
-        exploit = np.zeros(len(poses))
-        if len(mapper.map):
-            dev = mapper.device
-            sp = mapper.splats()
-            conf = self.confidence(mapper)[:, None]
-            for cams, out in render_candidates(sp, conf, float_tensor(poses, dev), self.K_score.to(dev), self.width,
-                                               self.height, near=mapper.near, far=mapper.far,
-                                               outputs=("features", "alpha", "depth"), backend=self.cfg.mapper.backend):
-                D = out.depth[..., 0]
-                surface = (out.alpha[..., 0] > 0.5) & (D <= EXPLORE_RANGE)
-                C = torch.where(surface, out.features[..., 0].clamp(0, 1), torch.ones_like(D))
-                exploit[cams] = ((1 - C) * D / EXPLORE_RANGE).mean(dim=(1, 2)).double().cpu().numpy()
+        explore, exploit = np.zeros(len(poses)), np.zeros(len(poses))
+        R = EXPLORE_RANGE
+        for cams, D, C in self._renders(mapper, poses):
+            if self.voxels is not None:
+                explore[cams] = self.voxels.visible_unexplored(poses[cams], K, D) / self.voxels.size_total
+            C = torch.where(D > R, torch.ones_like(D), C)
+            D_surface = torch.where(D < 0.001, torch.full_like(D, 0.5 * R), D)
+            exploit[cams] = ((1 - C) * D_surface / R).mean(dim=(1, 2)).double().numpy()
         return 1000.0 * explore + exploit
+
+    def _renders(self, mapper: OnlineMapper, poses: np.ndarray):
+        """(cameras, depth [c,H,W], confidence [c,H,W]) of the map at the candidates, on the CPU; an
+        empty map renders no surface anywhere."""
+        if len(mapper.map) == 0:
+            zeros = torch.zeros(len(poses), self.height, self.width)
+            yield slice(0, len(poses)), zeros, zeros
+            return
+        dev = mapper.device
+        for cams, out in render_candidates(mapper.splats(), self.confidence(mapper)[:, None], float_tensor(poses, dev),
+                                           self.K_score.to(dev), self.width, self.height, near=mapper.near,
+                                           far=mapper.far, outputs=("features", "depth"),
+                                           backend=self.cfg.mapper.backend):
+            yield cams, out.depth[..., 0].cpu(), out.features[..., 0].cpu()
 
     def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         if lengths is None:  # the loop did not pass planned lengths: straight line from the last view
             ref = self.last_center if self.last_center is not None else np.zeros(3)
             lengths = np.linalg.norm(np.asarray(poses)[:, :3, 3] - ref, axis=-1)
         return activegs_combine(self.utilities(mapper, poses), np.asarray(lengths, float),
-                                self.cfg.baselines.activegs_path_weight)
+                                self.cfg.baselines.activegs_path_weight, self.rng)

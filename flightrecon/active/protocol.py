@@ -86,3 +86,8 @@ class Selector(Protocol):
     def reliable_share(self, mapper: OnlineMapper) -> float:
         """Share of the map's splats the selector deems reliable (the loop's stopping statistic);
         0 for a selector that keeps no reliability, so the stopping rule never stops it."""
+
+    # Optional, called by the loop when a selector has them:
+    #   attach_scene(bounds (2,3)): the scene's bounding box, once, before the first frame.
+    #   propose(mapper, position (3,), yaw, frame) -> (positions [M,3], yaws [M]): the selector's own
+    #       candidate viewpoints for this step, checked by the planner instead of the shared library.

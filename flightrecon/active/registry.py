@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import Callable
 
+from flightrecon.active.activegs_native import ActiveGSNative
 from flightrecon.active.baselines import ActiveGSSelector, FisherRFSelector, GaussMISelector
 from flightrecon.active.explore import GaussMI2DExplore
 from flightrecon.active.protocol import Selector
@@ -19,7 +20,7 @@ from flightrecon.errors import ConfigError
 
 Factory = Callable[[ScenarioConfig], Selector]
 BUILT_IN: tuple[type, ...] = (GaussMI2D, GaussMI2DExplore, GaussMISelector, FisherRFSelector, ActiveGSSelector,
-                              RandomSelector, GaussMI2DNoWeight, GaussMI2DOneSided, GaussMI2DColorOnly,
+                              ActiveGSNative, RandomSelector, GaussMI2DNoWeight, GaussMI2DOneSided, GaussMI2DColorOnly,
                               GaussMI2DEdgeMask)
 SELECTORS: dict[str, Factory] = {cls.name: cls for cls in BUILT_IN}
 

@@ -93,7 +93,8 @@ def _baseline(mission: Mission, method: str, poses: np.ndarray, repeat: int) -> 
     if method == "fisherrf":  # its training views: the frames the map was trained on
         for i, f in enumerate(mapper.frames):
             selector.observe(mapper, Observation(i, None, None, None, np.linalg.inv(f.viewmat.double().numpy())))
-    if method == "activegs":  # its voxel map, from the depth of the frames the map was trained on
+    if method.startswith("activegs"):  # its voxel map over the scene, from the frames the map was trained on
+        selector.attach_scene(mission.rig.scene.bounds)
         for f in mapper.frames:
             selector.observe_space(expand_frame(f, torch.device("cpu"))[1][..., 0].numpy(), f.K.double().numpy(),
                                    f.T_wc)
@@ -102,8 +103,8 @@ def _baseline(mission: Mission, method: str, poses: np.ndarray, repeat: int) -> 
     height = getattr(selector, "height", cfg.selector.scoring_height)
     row = {"method": method, "resolution": f"{width}x{height}", "candidates": len(poses), "ms": 1e3 * t,
            "ms_per_cand": 1e3 * t / len(poses)}
-    if method == "activegs":
-        row["voxels_touched"] = int(selector.voxels.touched.sum())
+    if method.startswith("activegs"):
+        row["voxels_explored"] = int((~selector.voxels.unexplored).sum())
     return row
 
 
