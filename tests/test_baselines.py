@@ -1,4 +1,5 @@
-"""Each baseline selector's score equals its formula (spec/baselines.md) on hand-built tiny maps.
+"""Each baseline selector's update and score equal the formulas of its public code (docs/baselines.md)
+on hand-built tiny maps.
 
 Per-pixel blend weights w_i(p) come from rendering one-hot features (channel i = splat i's
 weight), then the formulas are applied as written, with loops where that is clearer.

@@ -25,7 +25,7 @@ def test_default_library_has_the_papers_198_distinct_candidates():
 
 
 def test_offsets_follow_gaussmi_convention():
-    # GauSS-MI (baselines.md): yaw' = yaw + dyaw, position + (-dy sin yaw', dy cos yaw', dz).
+    # GauSS-MI's library (docs/baselines.md): yaw' = yaw + dyaw, position + (-dy sin yaw', dy cos yaw', dz).
     lib = default_library()
     p0, yaw0 = np.array([0.2, 0.1, 1.0]), -1.1
     pos, yaw = lib.poses(p0, yaw0)

@@ -180,7 +180,7 @@ def test_candidate_rows_hold_every_drawn_splat(dtype):
 
 
 def test_feature_gradient_is_per_splat_pixel_sum_of_weights():
-    """design.md's identity: d(sum_p v(p) F(p)) / d f_i = sum_p v(p) w_i(p), and rendered
+    """render/rendered_view.py's identity: d(sum_p v(p) F(p)) / d f_i = sum_p v(p) w_i(p), and rendered
     one-hot features give the weights w_i(p) themselves."""
     means, quats, ls, op, _ = make_scene(30, seed=4)
     vm, K = cameras(2, 40, 30)

@@ -1,7 +1,7 @@
 """FisherRF's diagonal Hessian of a set of views, in the C++ kernel family.
 
 H(theta) = sum over cameras and pixels of (d sum_c C_c(p) / d theta)^2 for position (means),
-color, scale (log_scales) and opacity (logit), as in baselines.md (FisherRF). The kernel's Fisher
+color, scale (log_scales) and opacity (logit), as in docs/baselines.md (FisherRF). The kernel's Fisher
 mode accumulates, per splat and camera, the outer product over pixels of each pixel's gradient
 w.r.t. the splat's 11 screen-space quantities (ray transform rows and means2d), the squared opacity
 gradient and the squared blend weight. A parameter's squared per-pixel contributions then follow

@@ -4,7 +4,7 @@ Written from the equations, not from the kernel: every pixel's ray is intersecte
 splat's plane geometrically (ray-plane intersection, then local coordinates by projecting onto the
 tangents), the low-pass center is the center of the image conic obtained by inverting the
 homography, blending uses cumulative products, and the distortion uses the one-pass running sums of
-baselines.md. As in 2DGS, a pixel where the low-pass term wins takes the splat's center depth
+docs/equations.md (Eq. 3). As in 2DGS, a pixel where the low-pass term wins takes the splat's center depth
 (the ray-plane hit is meaningless there: tens of meters away for a grazing splat). No tiles and no Python loops over pixels or splats; pixels are processed in chunks so
 that the [pixels, splats] intermediates fit in memory. Autograd gives its gradients.
 """
@@ -77,7 +77,7 @@ def _render_camera(means, U, V, n, opacity, feats, viewmat, K, width, height, ne
         depth = torch.where(alpha > 0, zsum / torch.where(alpha > 0, alpha, torch.ones_like(alpha)),
                             torch.zeros_like(alpha))
         # One pass of running sums (A, M1, M2 over the splats in front): the distortion of
-        # baselines.md, sum_{i>j} w_i w_j (m_i - m_j)^2.
+        # docs/equations.md (Eq. 3), sum_{i>j} w_i w_j (m_i - m_j)^2.
         A = torch.cumsum(w, -1) - w
         M1 = torch.cumsum(w * m, -1) - w * m
         M2 = torch.cumsum(w * m * m, -1) - w * m * m
