@@ -15,7 +15,8 @@ from flightrecon.errors import DataError, FlightReconError
 from flightrecon import open3d_import
 from flightrecon.evaluation import lpips_metric
 from flightrecon.evaluation.lpips_metric import LpipsMetric
-from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface
+from flightrecon.evaluation.mesh_metrics import sample_surface, surface_metrics
+from flightrecon.scene.surface_distance import SurfaceDistance
 from flightrecon.evaluation.tsdf import fuse_depth_maps
 from flightrecon.evaluation.view_store import load_views, save_views
 from flightrecon.geometry import camera_pose, intrinsics
@@ -112,24 +113,30 @@ def _plane(size=2.0, z=0.0, n=20):
     return v, np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
 
 
-def test_mesh_against_itself_is_perfect():
+def test_mesh_against_itself_is_perfect_whatever_the_sampling():
+    """Exact distances: a mesh scores 0 against itself even with independent samples (sample-to-sample
+    distances would score the samples' spacing)."""
     v, f = _plane()
-    p = sample_surface(v, f, 20000, seed=3)
-    q = sample_surface(v, f, 20000, seed=3)
-    m = point_metrics(p, q, 0.05)
-    assert m["accuracy"] == 0.0 and m["completion"] == 0.0 and m["chamfer"] == 0.0 and m["fscore"] == 1.0
+    plane = trimesh.Trimesh(v, f, process=False)
+    m = surface_metrics(plane, SurfaceDistance(plane), sample_surface(v, f, 2000, seed=4), 3000)
+    assert m["accuracy"] < 1e-6 and m["completion"] < 1e-6 and m["fscore"] == 1.0
 
 
 def test_mesh_shifted_by_two_cm_gives_the_known_numbers():
     v, f = _plane()
-    truth = sample_surface(v, f, 20000, seed=3)
-    recon = sample_surface(v + [0, 0, 0.02], f, 20000, seed=3)  # same samples, moved along the normal
-    m = point_metrics(recon, truth, 0.05)
-    assert m["accuracy"] == pytest.approx(0.02, abs=1e-9)
-    assert m["completion"] == pytest.approx(0.02, abs=1e-9)
-    assert m["chamfer"] == pytest.approx(0.02, abs=1e-9)
+    truth = trimesh.Trimesh(v, f, process=False)
+    recon = trimesh.Trimesh(v + [0, 0, 0.02], f, process=False)  # moved along the normal
+    samples = sample_surface(v, f, 2000, seed=3)
+    inside = (np.abs(samples[:, :2]) < 0.95).all(1)  # away from the rim, the nearest point is straight up
+    m = surface_metrics(recon, SurfaceDistance(truth), samples[inside], 3000, 0.05)
+    assert m["accuracy"] == pytest.approx(0.02, abs=1e-6)
+    assert m["completion"] == pytest.approx(0.02, abs=1e-6)
+    assert m["chamfer"] == pytest.approx(0.02, abs=1e-6)
     assert m["fscore"] == 1.0  # every point within 5 cm
-    assert point_metrics(recon, truth, 0.01)["fscore"] == 0.0  # none within 1 cm
+    assert surface_metrics(recon, SurfaceDistance(truth), samples[inside], 3000, 0.01)["fscore"] == 0.0
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int), process=False)
+    e = surface_metrics(empty, SurfaceDistance(truth), samples, 100)
+    assert np.isnan(e["accuracy"]) and e["fscore"] == 0.0
 
 
 def _box_depth(box: trimesh.Trimesh, T_wc, K, W, H):
@@ -168,7 +175,7 @@ def test_tsdf_of_rendered_depth_recovers_a_box_within_a_voxel():
     # and the seen side faces are covered: every sample of them has the mesh within a voxel
     side = sample_surface(np.asarray(box.vertices), np.asarray(box.faces), 4000, seed=0)
     side = side[np.abs(side[:, 2]) < half[2] - trunc]
-    assert point_metrics(sample_surface(v, mesh.faces, 20000), side, voxel)["recall"] > 0.99
+    assert (SurfaceDistance(trimesh.Trimesh(v, mesh.faces, process=False)).distance(side) < voxel).mean() > 0.99
 
 
 def test_open3d_tsdf_of_a_box_room_rendered_from_inside_recovers_it_within_a_voxel(tmp_path):
@@ -194,7 +201,8 @@ def test_open3d_tsdf_of_a_box_room_rendered_from_inside_recovers_it_within_a_vox
     assert dist.max() < voxel  # every vertex, corners included (measured here: 8.7 mm)
     # completion: the views see all six faces, and every sample of them has the mesh within a voxel
     truth = sample_surface(v, faces, 20000, seed=0)
-    assert point_metrics(sample_surface(mesh.vertices, mesh.faces, 100000, seed=1), truth, voxel)["recall"] > 0.99
+    recon = SurfaceDistance(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False))
+    assert (recon.distance(truth) < voxel).mean() > 0.99
 
 
 def test_tsdf_of_only_invalid_depth_is_an_empty_mesh():

@@ -19,13 +19,14 @@ import trimesh
 
 from flightrecon.config import ScenarioConfig
 from flightrecon.evaluation.lpips_metric import LpipsMetric
-from flightrecon.evaluation.mesh_metrics import point_metrics, sample_surface
+from flightrecon.evaluation.mesh_metrics import surface_metrics
 from flightrecon.evaluation.tsdf import fuse_depth_maps
 from flightrecon.evaluation.views import EvaluationSet, mean_metrics
 from flightrecon.geometry import camera_pose, pixel_rays
 from flightrecon.mapping.losses import normals_from_depth
 from flightrecon.mapping.store import GaussianMap
 from flightrecon.render import render
+from flightrecon.scene.surface_distance import SurfaceDistance
 
 SURFACE_ALPHA = 0.5  # rendered opacity above which a pixel's depth enters the TSDF
 
@@ -59,6 +60,7 @@ class EvaluationTruth:
     fusion_poses: np.ndarray  # [F,4,4]
     fusion_K: np.ndarray
     fusion_size: int  # square fusion images, fusion_size pixels a side
+    surface: SurfaceDistance  # exact distance to the ground-truth triangles
     surface_points: np.ndarray  # (M,3) samples of the ground-truth surface visible from the free space
     visible_area_m2: float
     total_area_m2: float
@@ -90,11 +92,14 @@ def _nanmean(values: list[float]) -> float:
     return float(np.mean(v)) if v else float("nan")
 
 
-def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, truth: EvaluationTruth,
+def evaluate_map(source, cfg: ScenarioConfig, truth: EvaluationTruth,
                  lpips: LpipsMetric | None) -> tuple[dict, dict, trimesh.Trimesh]:
     """(metrics, first-view renders, TSDF mesh) of a map: image metrics on the evaluation views,
-    mesh metrics of its fusion at the fusion views against the visible ground truth."""
-    r = MapRenderer(gmap, cfg.camera.near, cfg.camera.far, cfg.mapper.backend)
+    mesh metrics of its fusion at the fusion views against the visible ground truth. `source` is a
+    GaussianMap, rendered as the mapper renders it, or any renderer with the mapper's `render_view`
+    (the ground truth itself, to hold the evaluation to a known answer)."""
+    r = (MapRenderer(source, cfg.camera.near, cfg.camera.far, cfg.mapper.backend)
+         if isinstance(source, GaussianMap) else source)
     ev = truth.views
     per_view, na, lp = [], [], []
     first: dict = {}
@@ -116,8 +121,8 @@ def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, truth: EvaluationTruth,
     m = cfg.metrics
     mesh = fuse_depth_maps(depths, truth.fusion_poses, truth.fusion_K, voxel=m.tsdf_voxel,
                            truncation=m.tsdf_truncation, max_depth=cfg.camera.far)
-    rec_pts = sample_surface(mesh.vertices, mesh.faces, m.sample_points, seed=0)
-    geo = point_metrics(rec_pts, truth.surface_points, m.fscore_threshold)
+    mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    geo = surface_metrics(mesh, truth.surface, truth.surface_points, m.sample_points, m.fscore_threshold)
     metrics = {
         **mean_metrics(per_view),
         "lpips": float(np.mean(lp)) if lp else "n/a",
@@ -130,4 +135,4 @@ def evaluate_map(gmap: GaussianMap, cfg: ScenarioConfig, truth: EvaluationTruth,
         "gt_visible_area_m2": truth.visible_area_m2, "gt_total_area_m2": truth.total_area_m2,
         "views": int(len(ev.poses)), "fusion_views": int(len(truth.fusion_poses)),
     }
-    return metrics, first, trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    return metrics, first, mesh

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from flightrecon import run_folder
+from flightrecon import provenance, run_folder
 from flightrecon.config import ScenarioConfig, load_config
 from flightrecon.errors import FlightReconError
 from flightrecon.evaluation.lpips_metric import LpipsMetric
@@ -26,6 +26,7 @@ from flightrecon.fileio import atomic_path, write_json, write_text
 from flightrecon.geometry import intrinsics
 from flightrecon.mapping.ply import load_map
 from flightrecon.rig import build_rig
+from flightrecon.scene.surface_distance import SurfaceDistance
 
 OVER_FRAMES_KEYS = ("psnr", "depth_l1_cm", "accuracy_cm", "completion_cm", "chamfer_cm", "fscore")
 
@@ -43,7 +44,7 @@ def evaluation_truth_for(cfg: ScenarioConfig) -> EvaluationTruth:
     visible = visible_surface(rig.scene, free, cfg.metrics.sample_points)
     size = cfg.camera.height
     return EvaluationTruth(views, fusion_poses(views.poses, grid_size(len(views.poses)) ** 2),
-                           intrinsics(size, size, 90.0), size, visible.points,
+                           intrinsics(size, size, 90.0), size, SurfaceDistance(rig.scene.trimesh), visible.points,
                            visible.visible_area_m2, visible.total_area_m2)
 
 
@@ -58,6 +59,7 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | None = None, override
     lpips = LpipsMetric(lpips_weights if lpips_weights is not None else cfg.metrics.lpips_weights)
     metrics, first, mesh = evaluate_map(load_map(run_dir / run_folder.MAP), cfg, truth, lpips)
     metrics["model_mb"] = (run_dir / run_folder.MAP).stat().st_size / 1e6
+    metrics["evaluated_with"] = provenance.code_state().label  # the flight's own code is in provenance.json
     with atomic_path(run_dir / run_folder.MESH) as tmp:
         mesh.export(str(tmp), file_type="ply")
     with atomic_path(run_dir / run_folder.NOVEL_VIEW) as tmp:
