@@ -176,11 +176,13 @@ def code_states(recs: list[dict]) -> dict[str, int]:
 def _code_note(recs: list[dict]) -> str:
     """The caption's statement of the code its runs were flown with: loud when they mix states."""
     states = code_states(recs)
-    mixed = len(states) > 1 or provenance.UNSTAMPED in states or any(len(r["code_states"]) > 1 for r in recs)
-    if not mixed:
-        return f"all runs flown at {next(iter(states))}"
-    return (f"MIXED CODE: these runs were flown with {len(states)} code state(s) "
-            f"({', '.join(f'{k}: {v} run(s)' for k, v in states.items())}; summary.md lists them)")
+    if list(states) == [provenance.UNSTAMPED]:
+        return (f"CODE NOT RECORDED: these {len(recs)} runs predate run stamps, so one table may mix code "
+                "states (summary.md)")
+    if len(states) > 1 or provenance.UNSTAMPED in states or any(len(r["code_states"]) > 1 for r in recs):
+        return (f"MIXED CODE: these runs were flown with {len(states)} code states "
+                f"({', '.join(f'{k}: {v} run(s)' for k, v in states.items())}; summary.md lists them)")
+    return f"all runs flown at {next(iter(states))}"
 
 
 def _scene_means(recs: list[dict], method: str, key: str) -> list[float]:
@@ -280,8 +282,8 @@ def _write_summary(out: Path, recs: list[dict], check: RankingCheck | None, fail
     lines = ["# Sweep summary", "", SHARED_PIPELINE, ""]
     states = code_states(recs)
     if len(states) > 1 or provenance.UNSTAMPED in states:
-        lines += ["**MIXED CODE: the tables mix runs flown with different code (or with unrecorded code); "
-                  "their differences may come from the code, not only the methods.**", ""]
+        lines += ["**MIXED CODE: the tables mix runs flown with different code, or with code no run recorded; "
+                  "their differences may come from the code, not only from the methods.**", ""]
     lines.append("Code states (commit, +dirty with a hash of the uncommitted changes) and the runs flown with each:")
     lines += [f"- {k}: {v} run(s)" for k, v in states.items()]
     across = [str(r["dir"]) for r in recs if len(r["code_states"]) > 1]
