@@ -56,5 +56,5 @@ def test_bench_run_then_score_on_its_map(tmp_path):
     assert row["candidates"] > 20 and row["same_argmax"] and 1 <= row["rescored"] <= row["candidates"]
     assert {b["method"] for b in score["baselines"]} == {"gaussmi", "fisherrf", "activegs"}
     activegs = next(b for b in score["baselines"] if b["method"] == "activegs")
-    assert activegs["voxels_touched"] > 0  # its exploration utility is timed with the run's voxel map
+    assert activegs["voxels_explored"] > 0  # its exploration utility is timed with the run's voxel map
     assert all(b["ratio_to_ours"] > 0 for b in score["baselines"])
