@@ -10,7 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
+import sys
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10: the same parser, as the package it came from
+    import tomli as tomllib
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path

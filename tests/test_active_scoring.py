@@ -13,23 +13,13 @@ import torch
 
 from flightrecon.active import gaussmi2d, reliability
 from flightrecon.config import ReliabilityConfig
-from flightrecon.geometry import camera_pose, intrinsics, pixel_rays, rotmat_to_quat
+from flightrecon.geometry import camera_pose, intrinsics, pixel_rays
 from flightrecon.render import render, render_view_with_sums
+from splat_scenes import wall
 
 CFG = ReliabilityConfig()
 W, H = 24, 18
 BACKENDS = ["reference", "cpu"]
-
-
-def _wall(n_side: int = 3, x: float = 2.0) -> dict[str, torch.Tensor]:
-    """A small wall of splats in the plane x = `x`, normals along -x (facing a camera at the origin)."""
-    ys, zs = np.meshgrid(np.linspace(-0.3, 0.3, n_side), np.linspace(0.9, 1.5, n_side))
-    means = np.stack([np.full(ys.size, x), ys.ravel(), zs.ravel()], 1)
-    R = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # columns t_u, t_v, n
-    quats = np.repeat(rotmat_to_quat(R)[None], len(means), 0)
-    t = lambda a: torch.tensor(a, dtype=torch.float32)  # noqa: E731
-    return {"means": t(means), "quats": t(quats), "log_scales": torch.full((len(means), 2), math.log(0.12)),
-            "opacity_logits": torch.full((len(means),), 2.0), "colors": torch.full((len(means), 3), 0.5)}
 
 
 def _weights(s, T_wc, K, backend) -> torch.Tensor:
@@ -49,7 +39,7 @@ K = torch.tensor(intrinsics(W, H, 90.0), dtype=torch.float32)
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_pixel_sums_equal_brute_force(backend):
-    s = _wall()
+    s = wall()
     T = _cam([0.0, 0.1, 1.2], 0.0)
     v = torch.rand(H, W, generator=torch.Generator().manual_seed(0))
     view = render_view_with_sums(s["means"], s["quats"], s["log_scales"], s["opacity_logits"], s["colors"],
@@ -67,7 +57,7 @@ def test_pixel_sums_of_values_computed_from_the_render_itself(backend):
     """A loss image made from the render carries the render's graph; its pixel sums must still be
     sum_p v(p) w_i(p), not the product rule's extra sum_p F(p) dv/df_i (the GauSS-MI port's bug: half
     of the splats took negative evidence from a map that fit its frames)."""
-    s = _wall()
+    s = wall()
     s["colors"] = torch.linspace(0.2, 0.8, 27).reshape(9, 3)
     T = _cam([0.0, 0.1, 1.2], 0.0)
     view = render_view_with_sums(s["means"], s["quats"], s["log_scales"], s["opacity_logits"], s["colors"],
@@ -83,7 +73,7 @@ def test_pixel_sums_of_values_computed_from_the_render_itself(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_update_sides_and_gating(backend):
-    s = _wall()
+    s = wall()
     N = s["means"].shape[0]
     rel0 = torch.zeros(N, 2)
     rgb = torch.full((H, W, 3), 0.5)
@@ -105,7 +95,7 @@ def test_update_sides_and_gating(backend):
 
 
 def test_update_formula_matches_eq14_by_hand():
-    s = _wall(1)  # one splat at (2, -0.3, 0.9)
+    s = wall(1)  # one splat at (2, -0.3, 0.9)
     T = _cam([0.0, -0.3, 0.9], 0.0)
     v = torch.rand(H, W, generator=torch.Generator().manual_seed(1))
     Tij = _weights(s, T, K, "reference")
@@ -118,7 +108,7 @@ def test_update_formula_matches_eq14_by_hand():
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_mi_equals_brute_force_eq22(backend):
-    s = _wall()
+    s = wall()
     N = s["means"].shape[0]
     rel = torch.linspace(-3.0, 4.0, 2 * N).reshape(N, 2)
     poses = torch.stack([_cam([0.0, 0.0, 1.2], 0.0), _cam([0.3, -0.4, 1.0], 0.3), _cam([4.0, 0.2, 1.2], math.pi)])
@@ -140,7 +130,7 @@ def test_mi_equals_brute_force_eq22(backend):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_unreliable_surface_scores_higher(backend):
-    left, right = _wall(x=2.0), _wall(x=2.0)
+    left, right = wall(x=2.0), wall(x=2.0)
     right["means"] = right["means"] + torch.tensor([0.0, 3.0, 0.0])  # a second wall to the +y side
     s = {k: torch.cat([left[k], right[k]]) for k in left}
     n = left["means"].shape[0]
@@ -161,7 +151,7 @@ def test_depth_noise_prior_is_one_at_best_range_and_decreasing():
 def test_shared_render_gives_the_sums_of_a_unit_feature_render(backend):
     """The loop's one render at the capture pose (colors, depth, normal) gives the same per-splat sums
     as a render of a unit feature of its own (the reliability update's render before it was shared)."""
-    s = _wall(4)
+    s = wall(4)
     T = _cam([0.1, 0.05, 1.1], 0.1)
     v = torch.rand(H, W, generator=torch.Generator().manual_seed(2)) * 9.0
     view = render_view_with_sums(s["means"], s["quats"], s["log_scales"], s["opacity_logits"], s["colors"],

@@ -322,8 +322,6 @@ def test_activegs_native_proposes_its_views_around_regions_of_interest():
     sel = make_selector(cfg)
     assert isinstance(sel, ActiveGSNative)
     sel.attach_scene(np.array([[-1.0, -2.0, 0.0], [3.0, 2.0, 2.4]]))
-    c = cfg.camera
-    K = intrinsics(c.width, c.height, c.hfov_deg)
     here = np.array([0.0, 0.1, 1.2])
     T = camera_pose(here, 0.0)
     sel.observe(m, _obs(cfg, m, T))

@@ -15,7 +15,7 @@ from flightrecon.config import load_config
 from flightrecon.evaluation.coverage import SurfaceCoverage
 from flightrecon.geometry import camera_pose, intrinsics
 from flightrecon.mission import Mission
-from tests.test_active_scoring import _wall
+from splat_scenes import wall
 
 W, H = 24, 18
 K = torch.tensor(intrinsics(W, H, 90.0), dtype=torch.float32)
@@ -32,7 +32,7 @@ def test_kinds_follow_the_observed_sides_log_odds():
 
 @pytest.mark.parametrize("backend", ["reference", "cpu"])
 def test_split_sums_to_the_scored_mi(backend):
-    s = _wall(4)
+    s = wall(4)
     N = len(s["means"])
     rel = torch.linspace(-2.0, 10.0, 2 * N).reshape(N, 2)
     rel[::3, 0] = 0.0

@@ -36,7 +36,7 @@ from flightrecon.active.reliability import observation_weights, splat_normals
 from flightrecon.config import ScenarioConfig
 from flightrecon.geometry import pixel_rays, yaw_of_camera
 from flightrecon.mapping.mapper import OnlineMapper
-from flightrecon.render import FisherDiag, load_extension, render_fisher_diag
+from flightrecon.render import FisherDiag, render_fisher_diag
 
 EXPLORE_RANGE = 5.0  # m, ActiveGS's utility range
 # GauSS-MI's constants (its public configs and code, docs/baselines.md)
