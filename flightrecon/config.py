@@ -22,8 +22,9 @@ from pathlib import Path
 from typing import Any
 
 from flightrecon.errors import ConfigError
+from flightrecon.resources import resource
 
-SCENARIO_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+SCENARIO_DIR = resource("scenarios")
 
 
 def _f(default: Any, lo: float | None = None, hi: float | None = None, choices: tuple | None = None,

@@ -4,7 +4,8 @@
 only, depth L1, normal angle error) and mesh metrics (TSDF mesh of the map; Accuracy, Completion,
 Chamfer, F-score against the visible ground truth) and the model size, writing eval.json and
 mesh.ply into each run folder. `flightrecon eval --views SCENARIO [--scenes ...]` writes the fixed
-evaluation viewpoints of each scene to scenarios/eval_views/<scene>.json for sharing and inspection.
+evaluation viewpoints of each scene to eval_views/<scene>.json in the current folder (--out
+elsewhere; the shipped copies are scenarios/eval_views/) for sharing and inspection.
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", metavar="SCENARIO", default=None,
                    help="write the evaluation viewpoints of the scenario's scene(s) instead")
     p.add_argument("--scenes", nargs="+", default=None, help="with --views: these scenes (default: the scenario's)")
-    p.add_argument("--out", default=None, help="with --views: output folder (default scenarios/eval_views)")
+    p.add_argument("--out", default="eval_views", help="with --views: output folder (default ./eval_views; "
+                   "the copies shipped with the scenarios are in scenarios/eval_views)")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value of the evaluation (e.g. evaluation.views=64) or, with --views, "
                         "of the scenario (repeatable)")
@@ -45,13 +47,13 @@ def run(args: argparse.Namespace) -> int:
 def _write_views(args: argparse.Namespace) -> int:
     from flightrecon.config import load_config
     from flightrecon.experiments.run_eval import evaluation_views_for
-    from flightrecon.evaluation.view_store import VIEWS_DIR, save_views, views_path
+    from flightrecon.evaluation.view_store import save_views, views_path
 
     base = load_config(args.views, args.overrides)
     for scene in args.scenes or [base.scene.name]:
         cfg = load_config(args.views, args.overrides + [f"scene.name={scene}"])
         ev = evaluation_views_for(cfg)
-        path = save_views(views_path(scene, args.out or VIEWS_DIR), scene, ev.poses, ev.K, ev.width, ev.height,
+        path = save_views(views_path(scene, args.out), scene, ev.poses, ev.K, ev.width, ev.height,
                           cfg.evaluation.seed)
         print(f"{path}: {len(ev.poses)} views")
     return 0

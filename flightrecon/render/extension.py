@@ -29,10 +29,11 @@ from functools import lru_cache
 from pathlib import Path
 
 from flightrecon.errors import FlightReconError
+from flightrecon.resources import resource
 
 log = logging.getLogger(__name__)
 
-CSRC = Path(__file__).resolve().parents[2] / "csrc"
+CSRC = resource("csrc")
 # the rasterizer is one file per pipeline stage around rasterize.h (csrc/rasterize.h lists them)
 SOURCES = [CSRC / name for name in (
     "module.cpp", "rasterize.cpp", "rasterize_project.cpp", "rasterize_bin.cpp", "rasterize_forward.cpp",

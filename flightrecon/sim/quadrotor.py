@@ -13,17 +13,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from flightrecon.config import ScenarioConfig
 from flightrecon.errors import ConfigError
+from flightrecon.resources import resource
 from flightrecon.geometry import (R_CV_FROM_MJ, body_to_camera_rotation, mujoco_camera_to_opencv,
                                   rot_z, rotmat_to_quat, vfov_deg)
 
-MODEL_PATH = Path(__file__).resolve().parents[2] / "models" / "quadrotor.xml"
+MODEL_PATH = resource("models") / "quadrotor.xml"
 BODY = "drone"
 CAMERA = "drone_cam"
 # Rotor layout of the X frame: front-left, back-left, back-right, front-right (body x fwd, y left).
