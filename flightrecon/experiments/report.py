@@ -176,6 +176,8 @@ def code_states(recs: list[dict]) -> dict[str, int]:
 def _code_note(recs: list[dict]) -> str:
     """The caption's statement of the code its runs were flown with: loud when they mix states."""
     states = code_states(recs)
+    if not states:
+        return "no finished runs"
     if list(states) == [provenance.UNSTAMPED]:
         return (f"CODE NOT RECORDED: these {len(recs)} runs predate run stamps, so one table may mix code "
                 "states (summary.md)")
