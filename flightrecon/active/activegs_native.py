@@ -89,9 +89,10 @@ def roi_views(vm: VoxelMap, roi: np.ndarray, normals: np.ndarray, free_points: n
         point, normal = centers[roi[k]], normals[k]
         if not normal.any():
             normal = free_direction(vm, roi[k])
-            if normal is None:
-                continue
-        normal = normal / np.linalg.norm(normal)
+        length = np.linalg.norm(normal) if normal is not None else 0.0
+        if not length > 1e-9:  # no free neighbour, or free on every side alike: no direction to view it from
+            continue
+        normal = normal / length
         to_roi = point - free_points
         dist = np.linalg.norm(to_roi, axis=1)
         view = to_roi / dist.clip(1e-12)[:, None]
