@@ -51,6 +51,7 @@ SHARED_PIPELINE = ("Every method here flies with the same 2DGS mapper, planner, 
                    "simulator and evaluation: only the view-selection criterion differs. The paper ran "
                    "GauSS-MI and FisherRF on a 3DGS pipeline and ActiveGS with its own planner, so its "
                    "comparison also mixes in those differences; this one isolates the criterion.")
+OWN_CANDIDATES = ("activegs_native",)  # methods that propose their own candidates instead of the library
 PAIRED = [("psnr", "PSNR", 2), ("psnr_covered", "PSNR cov.", 2), ("depth_l1_cm", "D-L1 [cm]", 2),
           ("completion_cm", "Comp [cm]", 2), ("fscore", "F-score", 3)]
 
@@ -282,6 +283,10 @@ def _write_summary(out: Path, recs: list[dict], check: RankingCheck | None, fail
     """What the tables compare, how many runs they hold (and which flights failed, why), and whether
     the budget settles the ranking."""
     lines = ["# Sweep summary", "", SHARED_PIPELINE, ""]
+    own = sorted({r["method"] for r in recs if r["method"] in OWN_CANDIDATES})
+    if own:
+        lines += [f"Except for the candidates: {', '.join(own)} choose among their own (docs/baselines.md), "
+                  "which the same planner checks.", ""]
     states = code_states(recs)
     if len(states) > 1 or provenance.UNSTAMPED in states:
         lines += ["**MIXED CODE: the tables mix runs flown with different code, or with code no run recorded; "
