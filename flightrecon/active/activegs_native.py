@@ -65,14 +65,14 @@ def regions_of_interest(vm: VoxelMap, means: torch.Tensor, normals: torch.Tensor
     return keep, normal[keep]
 
 
-def free_direction(vm: VoxelMap, flat: int) -> np.ndarray | None:
-    """Mean unit direction from voxel `flat` to its free 26-neighbours, or None without one."""
+def free_direction(vm: VoxelMap, free: np.ndarray, flat: int) -> np.ndarray | None:
+    """Mean unit direction from voxel `flat` to its free (`free` [M]) 26-neighbours, or None without one."""
     ijk = np.array(np.unravel_index(flat, vm.dims))
     offsets = np.array([(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) != (0, 0, 0)])
     nb = ijk + offsets
     nb = nb[((nb >= 0) & (nb < vm.dims)).all(1)]
     flat_nb = np.ravel_multi_index(nb.T, vm.dims)
-    free_nb = flat_nb[vm.free.numpy()[flat_nb]]
+    free_nb = flat_nb[free[flat_nb]]
     if len(free_nb) == 0:
         return None
     d = vm.centers[free_nb].numpy() - vm.centers[flat].numpy()
@@ -82,13 +82,13 @@ def free_direction(vm: VoxelMap, flat: int) -> np.ndarray | None:
 def roi_views(vm: VoxelMap, roi: np.ndarray, normals: np.ndarray, free_points: np.ndarray, position: np.ndarray,
               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Views (positions [V,3], unit view directions [V,3]) at the regions, nearest region first."""
-    centers = vm.centers.numpy()
+    centers, free = vm.centers.numpy(), vm.free.numpy()
     order = np.argsort(np.linalg.norm(centers[roi] - position, axis=1), kind="stable")
     positions, directions = [], []
     for k in order:
         point, normal = centers[roi[k]], normals[k]
         if not normal.any():
-            normal = free_direction(vm, roi[k])
+            normal = free_direction(vm, free, roi[k])
         length = np.linalg.norm(normal) if normal is not None else 0.0
         if not length > 1e-9:  # no free neighbour, or free on every side alike: no direction to view it from
             continue
