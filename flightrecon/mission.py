@@ -28,17 +28,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from flightrecon import provenance, run_folder
-from flightrecon.active.diagnosis import mi_split, move_kind
-from flightrecon.active.protocol import Observation
+from flightrecon.active.diagnosis import move_kind
+from flightrecon.active.protocol import MapView, Observation, Selector
 from flightrecon.active.registry import make_selector
-from flightrecon.active.selectors import GaussMI2D
 from flightrecon.config import ScenarioConfig, load_config, to_toml
 from flightrecon.control.trajectory import FlatState
-from flightrecon.dataset import write_trajectory_csv
-from flightrecon.errors import DataError, FlightReconError
+from flightrecon.dataset import DatasetWriter, write_trajectory_csv
+from flightrecon.errors import ConfigError, DataError, FlightReconError
 from flightrecon.evaluation.coverage import SurfaceCoverage
 from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
 from flightrecon.fileio import atomic_path, write_json, write_text
@@ -73,8 +71,9 @@ class MissionState:
     visited: list = field(default_factory=list)  # (position, yaw) of every capture
     flight_distance: float = 0.0
     wall_time: float = 0.0
-    reliable_ema: float = 0.0  # GauSS-MI's stopping statistic (see `_update_stopping`)
+    reliable_ema: float = 0.0  # EMA of the selector's stopping statistic (see `_update_stopping`)
     told_no_room: bool = False  # the user was told the drone cannot leave its take-off point
+    dataset_frames: list = field(default_factory=list)  # output.dataset: the transforms.json entries so far
     coverage: SurfaceCoverage | None = None  # output.diagnose: what the captured depth has reached
     diagnosis: list = field(default_factory=list)  # output.diagnose: one row per frame
 
@@ -91,8 +90,11 @@ class Mission:
         self.planner = Planner(cfg, rig.workspace, rig.scene.trimesh, rig.start)
         self.mapper = OnlineMapper(cfg.mapper, near=cfg.camera.near, far=cfg.camera.far, seed=cfg.seed)
         self.selector = make_selector(cfg)
-        if hasattr(self.selector, "attach_scene"):  # a selector that maps the scene's box (ActiveGS)
-            self.selector.attach_scene(rig.scene.bounds)
+        self.view = MapView(self.mapper, self.selector.columns)
+        if cfg.budget.stop_on_reliability and not self.has_stopping_statistic:
+            raise ConfigError(f"config key 'budget.stop_on_reliability': selector {cfg.selector.method!r} keeps no "
+                              "stopping statistic; set it to false or choose a selector that has one")
+        self.selector.attach_scene(rig.scene.bounds)
         self.evaluation = rig.evaluation_set()
         self.state = MissionState()
         if cfg.output.diagnose:
@@ -100,7 +102,9 @@ class Mission:
             self.state.coverage = SurfaceCoverage(visible_surface(rig.scene, free, DIAGNOSIS_SURFACE_SAMPLES).points)
         self.live_viewer = False  # `fly --rerun`: stream the recording to a viewer as well
         self.allow_code_change = False  # resume a run whose earlier frames ran other code (recorded)
-        self.recorder = NullRecorder()
+        self.recorder = NullRecorder()  # the recording, opened by the first step of this process
+        self._begun = False
+        self.dataset: DatasetWriter | None = None  # output.dataset, opened by the first step
 
     # ------------------------------------------------------------------ run control
     @classmethod
@@ -117,37 +121,64 @@ class Mission:
         return mission
 
     def run(self) -> dict:
-        """Fly until the frame budget; returns the final metrics (also written to metrics.json)."""
-        budget = self.cfg.budget.frames
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        write_text(self.run_dir / run_folder.CONFIG, to_toml(self.cfg))
-        provenance.begin_segment(self.run_dir, self.state.frame, self.allow_code_change)
-        if self.state.frame == 0:
-            self._take_off()
-        bar = _progress(budget, self.state.frame, self.progress)
-        start = self.state.frame
-        self.recorder = open_recorder(self.cfg, self.run_dir, Stage(self.rig.scene, self.rig.workspace, self.rig.K),
-                                      frame=start, sim_time=self.flight.time, live=self.live_viewer,
-                                      takeoff=self.flight.log.columns() if start == 0 else None)
-        while self.state.frame < budget:
-            t0 = time.perf_counter()
-            row = self._step(last=self.state.frame == budget - 1)
-            self.state.wall_time += time.perf_counter() - t0
-            self.state.records.append(row)
-            self.recorder.frame_done(row)
-            self.state.frame += 1
-            self._save_frame_outputs()
-            if self.cfg.output.checkpoint:
-                self._save_checkpoint()
-            bar.update(row)
-            if self.cfg.budget.stop_on_reliability and self.state.reliable_ema > RELIABLE_STOP:
+        """Fly until the frame budget (or the stopping rule); returns the final metrics (metrics.json)."""
+        bar = _progress(self.cfg.budget.frames, self.state.frame, self.progress)
+        while not self.done:
+            bar.update(self.step())
+            if self.stopping_rule_met:
                 self._event(f"frame {self.state.frame - 1}: stopping rule met (EMA of the reliable share "
                             f"{self.state.reliable_ema:.3f} > {RELIABLE_STOP})")
                 self._save_frame_outputs()
                 break
         bar.close()
-        self.recorder.close()
-        return self._finish()
+        return self.finish()
+
+    @property
+    def done(self) -> bool:
+        """The frame budget is spent."""
+        return self.state.frame >= self.cfg.budget.frames
+
+    @property
+    def stopping_rule_met(self) -> bool:
+        return self.cfg.budget.stop_on_reliability and self.state.reliable_ema > RELIABLE_STOP
+
+    def step(self) -> dict:
+        """One frame of the loop: capture, map, update the selector, then (except at the budget's last
+        frame) plan, score and fly to the chosen view. The first call takes off. Returns the frame's row
+        of frames.csv; the frame's outputs and checkpoint are written before it returns."""
+        if self.done:
+            raise FlightReconError(f"the frame budget ({self.cfg.budget.frames}) is spent; `finish()` writes the "
+                                   "map and metrics")
+        if not self._begun:
+            self._begin()
+        t0 = time.perf_counter()
+        row = self._step(last=self.state.frame == self.cfg.budget.frames - 1)
+        self.state.wall_time += time.perf_counter() - t0
+        self.state.records.append(row)
+        self.recorder.frame_done(row)
+        self.state.frame += 1
+        self._save_frame_outputs()
+        if self.cfg.output.checkpoint:
+            self._save_checkpoint()
+        return row
+
+    def _begin(self) -> None:
+        """Before the first step of this process: the run folder, its config and provenance, the take-off
+        (a new run), and the recording."""
+        self._begun = True
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        write_text(self.run_dir / run_folder.CONFIG, to_toml(self.cfg))
+        provenance.begin_segment(self.run_dir, self.state.frame, self.allow_code_change)
+        start = self.state.frame
+        if start == 0:
+            self._take_off()
+        if self.cfg.output.dataset:
+            c = self.cfg.camera
+            self.dataset = DatasetWriter(self.run_dir / run_folder.DATASET, self.rig.K, c.width, c.height)
+            self.dataset.frames = self.state.dataset_frames  # the entries of frames before a resume
+        self.recorder = open_recorder(self.cfg, self.run_dir, Stage(self.rig.scene, self.rig.workspace, self.rig.K),
+                                      frame=start, sim_time=self.flight.time, live=self.live_viewer,
+                                      takeoff=self.flight.log.columns() if start == 0 else None)
 
     # ------------------------------------------------------------------ one step
     def _take_off(self) -> None:
@@ -161,7 +192,10 @@ class Mission:
         cfg = self.cfg
         row: dict = {"frame": self.state.frame}
         t = time.perf_counter()
-        rgb, depth, T_wc, _ = self.flight.capture(self.rig.camera)
+        rgb, depth, T_wc, T_true = self.flight.capture(self.rig.camera)
+        if self.dataset is not None:
+            self.dataset.add(rgb, depth, T_wc, self.flight.time, T_true)
+            self.dataset.write_index()
         body = self.flight.state
         self.state.visited.append((body.position.copy(), float(body.yaw)))
         row["t_capture"] = time.perf_counter() - t
@@ -177,7 +211,7 @@ class Mission:
             # the one render of the map at the captured pose: selector update, frame quality, recording
             obs = Observation(self.state.frame, rgb, depth, self.rig.K, T_wc,
                               self.mapper.render_capture(T_wc, self.rig.K, depth.shape[1], depth.shape[0]))
-            self.selector.observe(self.mapper, obs)
+            self.selector.observe(self.view, obs)
         row["t_select_update"] = time.perf_counter() - t
         row["reliable_share_ema"] = self._update_stopping()
         row["n_splats"] = len(self.mapper.map)
@@ -196,7 +230,7 @@ class Mission:
             row["eval_psnr"], row["eval_depth_l1_cm"] = q["psnr"], q["depth_l1_cm"]
             if cfg.evaluation.snapshots and not last:  # mesh metrics need a TSDF: `eval` scores them later
                 save_map(self.mapper.map, run_folder.snapshot_path(self.run_dir, self.state.frame),
-                         extras=cfg.output.ply_extras)
+                         extras=cfg.output.ply_extras, columns=self.selector.columns)
         if last:
             return row
         self._choose_and_fly(row)
@@ -211,26 +245,50 @@ class Mission:
             raise DataError(f"frame {self.state.frame}, stage {name}: {exc} (run folder {self.run_dir} keeps "
                             "the frames before it)") from None
 
+    @property
+    def has_stopping_statistic(self) -> bool:
+        return type(self.selector).stopping_statistic is not Selector.stopping_statistic
+
     def _update_stopping(self) -> float:
-        """GauSS-MI's stopping statistic: an exponential moving average (0.95) of the share of splats
-        the selector deems reliable; `budget.stop_on_reliability` stops past 75%."""
-        share = self.selector.reliable_share(self.mapper)
+        """GauSS-MI's stopping rule: an exponential moving average (0.95) of the share of splats the
+        selector deems reliable; `budget.stop_on_reliability` stops past 75%. NaN for a selector
+        without the statistic."""
+        share = self.selector.stopping_statistic(self.view)
+        if share is None:
+            return math.nan
         self.state.reliable_ema = RELIABLE_EMA * self.state.reliable_ema + (1 - RELIABLE_EMA) * share
         return self.state.reliable_ema
 
+    def _rest_state(self) -> FlatState:
+        s = self.flight.state
+        return FlatState(s.position.copy(), np.zeros(3), np.zeros(3), float(s.yaw), 0.0)
+
+    def plan_candidates(self) -> list[CandidateResult]:
+        """The candidate views of this step, checked by the planner from where the drone hovers: the
+        shared library around it, or the selector's own candidates when it proposes them."""
+        start = self._rest_state()
+        own = self.selector.propose(self.view, start.position.copy(), start.yaw, self.state.frame)
+        if own is None:
+            return self.planner.check_library(start)
+        positions, yaws = own
+        return self.planner.check(start, positions, yaws) if len(positions) else []
+
+    def score_candidates(self, candidates: list[CandidateResult]) -> np.ndarray:
+        """The selector's scores [C] of planned candidates (higher is better; the loop flies to the argmax).
+        A seeded selector such as random draws from its generator on every call."""
+        lengths = np.array([r.length for r in candidates])
+        with self._stage("scoring"):
+            return np.asarray(self.selector.score(self.view, self.candidate_poses(candidates), lengths), float)
+
     def _choose_and_fly(self, row: dict) -> None:
         seed_ompl(self.cfg.seed * 1_000_003 + self.state.frame)
-        s = self.flight.state
-        start = FlatState(s.position.copy(), np.zeros(3), np.zeros(3), float(s.yaw), 0.0)
+        start = self._rest_state()
         t = time.perf_counter()
         if self.state.frame + 1 < self.cfg.budget.initial_views:
             step = 2 * math.pi / self.cfg.budget.initial_views
-            results = self.planner.check(start, s.position[None], np.array([s.yaw + step]))
-        elif hasattr(self.selector, "propose"):  # the selector's own candidates (activegs_native)
-            positions, yaws = self.selector.propose(self.mapper, s.position.copy(), float(s.yaw), self.state.frame)
-            results = self.planner.check(start, positions, yaws) if len(positions) else []
+            results = self.planner.check(start, start.position[None], np.array([start.yaw + step]))
         else:
-            results = self.planner.check_library(start)
+            results = self.plan_candidates()
         row["t_plan"] = time.perf_counter() - t
         feasible = [r for r in results if r.feasible]
         row["n_candidates"], row["n_feasible"] = len(results), len(feasible)
@@ -240,9 +298,7 @@ class Mission:
         if len(feasible) == 1:
             chosen, row["chosen_score"] = feasible[0], math.nan
         elif feasible:
-            lengths = np.array([r.length for r in feasible])
-            with self._stage("scoring"):
-                scores = np.asarray(self.selector.score(self.mapper, self.candidate_poses(feasible), lengths), float)
+            scores = self.score_candidates(feasible)
             best = int(np.argmax(scores))
             chosen, row["chosen_score"] = feasible[best], float(scores[best])
             if self.state.coverage is not None:
@@ -277,19 +333,13 @@ class Mission:
             self._event(f"frame {self.state.frame}: contact {ev.describe()}")
 
     def _diagnose_choice(self, chosen: CandidateResult, scores: np.ndarray) -> None:
-        """output.diagnose: the move, the best score over the median, and (for 2D GauSS-MI and its
-        ablations) the chosen view's MI split by kind of splat."""
+        """output.diagnose: the move, the best score over the median, and the selector's own diagnosis
+        of the chosen view (2D GauSS-MI: its MI split by kind of splat)."""
         s = self.flight.state
         diag = self.state.diagnosis[-1]
         diag["move"] = move_kind(s.position, float(s.yaw), chosen.position, float(chosen.yaw))
         diag["best_over_median"] = float(scores.max() / np.median(scores)) if np.median(scores) > 0 else math.nan
-        if isinstance(self.selector, GaussMI2D):
-            c = self.cfg
-            pose = torch.as_tensor(self.candidate_poses([chosen])[0], dtype=torch.float32)
-            diag.update(mi_split(self.mapper.splats(), self.selector.reliability(self.mapper), pose,
-                                 self.selector.K_score, c.selector.scoring_width, c.selector.scoring_height,
-                                 w_min=c.reliability.w_min, clamp=c.reliability.logodds_clamp,
-                                 near=self.mapper.near, far=self.mapper.far, backend=c.mapper.backend))
+        diag.update(self.selector.diagnose(self.view, self.candidate_poses([chosen])[0]))
 
     def _recover(self, start: FlatState, results: list[CandidateResult], row: dict) -> CandidateResult | None:
         """No feasible candidate: turn in place, else back-track to an earlier viewpoint, else hover."""
@@ -348,9 +398,14 @@ class Mission:
             names = list(dict.fromkeys(k for r in self.state.diagnosis for k in r))
             write_text(self.run_dir / run_folder.DIAGNOSIS, _csv_text(self.state.diagnosis, names))
 
-    def _finish(self) -> dict:
-        save_map(self.mapper.map, self.run_dir / run_folder.MAP, extras=self.cfg.output.ply_extras)
+    def finish(self) -> dict:
+        """Close the recording and write the final map, trajectory and metrics.json; returns the metrics."""
+        self.recorder.close()
+        save_map(self.mapper.map, self.run_dir / run_folder.MAP, extras=self.cfg.output.ply_extras,
+                 columns=self.selector.columns)
         write_trajectory_csv(self.run_dir / run_folder.TRAJECTORY, self.flight.log.columns())
+        if self.dataset is not None:
+            self.dataset.close(self.flight.log.columns())
         final = self.evaluation.evaluate(self.mapper)
         rec = self.state.records
         metrics = {
@@ -385,6 +440,7 @@ class Mission:
             raise FlightReconError(f"checkpoint {path} cannot be read ({exc}); delete it to restart the run") from None
         self.flight.set_state(payload["flight"])
         self.mapper, self.planner, self.selector = payload["mapper"], payload["planner"], payload["selector"]
+        self.view = MapView(self.mapper, self.selector.columns)
         self.state = payload["mission"]
 
 

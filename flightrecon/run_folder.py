@@ -19,6 +19,7 @@ SNAPSHOTS = "snapshots"  # map_<frame>.ply saved at each in-flight evaluation (e
 FAILED = "failed.txt"  # why the flight stopped (it diverged, or met bad data); a sweep then skips it
 EVAL = "eval.json"  # written last by `eval`: its presence means the run is scored
 MESH = "mesh.ply"  # the TSDF mesh of the final map
+DATASET = "dataset"  # output.dataset: the captured RGB-D frames and poses (transforms.json, flightrecon.dataset)
 NOVEL_VIEW = "novel_view.npz"  # the first evaluation view's ground truth and renders
 OVER_FRAMES = "eval_over_frames.csv"  # the snapshots' metrics over collected frames
 

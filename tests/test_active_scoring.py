@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from flightrecon.active import gaussmi2d, reliability
-from flightrecon.config import ReliabilityConfig
+from flightrecon.active.reliability import ReliabilityConfig
 from flightrecon.geometry import camera_pose, intrinsics, pixel_rays
 from flightrecon.render import render, render_view_with_sums
 from splat_scenes import wall

@@ -13,8 +13,8 @@ import torch
 
 from flightrecon.active.baselines import (ActiveGSSelector, FisherRFSelector, GaussMISelector, VoxelMap,
                                           activegs_combine, revisit_discount)
-from flightrecon.active.protocol import Observation
-from flightrecon.active.registry import SELECTORS, make_selector
+from flightrecon.active.protocol import MapView, Observation
+from flightrecon.active.registry import make_selector, selectors
 from flightrecon.active.selectors import GaussMI2D
 from flightrecon.config import load_config
 from flightrecon.geometry import camera_pose, intrinsics, pixel_rays, rotmat_to_quat
@@ -70,7 +70,7 @@ POSES = np.stack([camera_pose(np.array([0.0, 0.1, 1.2]), 0.0), camera_pose(np.ar
 def test_all_baselines_and_ablations_are_registered():
     for name in ("gaussmi", "fisherrf", "activegs", "random", "gaussmi2d_now", "gaussmi2d_onesided",
                  "gaussmi2d_color"):
-        assert name in SELECTORS
+        assert name in selectors()
         assert make_selector(_cfg(name)).name == name
 
 
@@ -85,19 +85,19 @@ def _gaussmi_expected(m, obs, cfg, start):
     masks), L' = -ln(max(lambda_L L, 1e-4)), l_zk = clip(lambda_T sum_p w_i(p) c_ik L'(p), +-100),
     then clip(l + clip(l_zk, +-10), +-10); splats of total weight < 1 keep theirs (our stand-in for
     its 5-touched-pixel rule)."""
-    b, c = cfg.baselines, cfg.camera
+    b, c = cfg.gaussmi, cfg.camera
     w = _weights(m, obs.T_wc, obs.K, c.width, c.height).numpy()  # [N,H,W]
     out = m.render_view(obs.T_wc, obs.K, c.width, c.height, outputs=("features", "alpha", "depth"))
     D_acc = (out.depth[0, ..., 0] * out.alpha[0, ..., 0]).double().numpy()
     color = out.features[0].double().numpy()
     L = 0.95 * np.abs(color - obs.rgb).mean(-1) * (obs.rgb.sum(-1) > 0.01) \
         + 0.05 * np.abs(D_acc - obs.depth) * (obs.depth > 0.01)
-    v = -np.log(np.maximum(b.gaussmi_lambda_L * L, 1e-4))
+    v = -np.log(np.maximum(b.lambda_L * L, 1e-4))
     means = m.map["means"].double().numpy()
     expect = start.copy()
     for i in range(len(means)):
         if w[i].sum() >= 1.0:
-            lz = np.clip(b.gaussmi_lambda_T * _ck(means[i], obs.T_wc[:3, 3]) * (w[i] * v).sum(), -100, 100)
+            lz = np.clip(b.lambda_T * _ck(means[i], obs.T_wc[:3, 3]) * (w[i] * v).sum(), -100, 100)
             expect[i] = np.clip(start[i] + np.clip(lz, -10, 10), -10, 10)
     return expect, v
 
@@ -117,7 +117,7 @@ def _noisy_obs(cfg, m, T, seed):
 def test_gaussmi_update_follows_its_public_code(lambda_T):
     """Held to its formulas at a lambda_T small enough that no clip hides a wrong sum, and at its
     default, where the per-update clip (+-10) acts on log-odds that already hold evidence."""
-    cfg = _cfg("gaussmi", [f"baselines.gaussmi_lambda_T={lambda_T}"])
+    cfg = _cfg("gaussmi", [f"gaussmi.lambda_T={lambda_T}"])
     m = _mapper(cfg)
     sel = GaussMISelector(cfg)
     N = len(m.map)
@@ -125,7 +125,7 @@ def test_gaussmi_update_follows_its_public_code(lambda_T):
     for k, T in enumerate(POSES):
         obs = _noisy_obs(cfg, m, T, seed=k)
         expect, v = _gaussmi_expected(m, obs, cfg, state)
-        sel.observe(m, obs)
+        sel.observe(MapView(m, sel.columns), obs)
         np.testing.assert_allclose(m.map["gaussmi_logodds"].double().numpy(), expect, rtol=2e-3, atol=2e-4)
         state = expect
     assert (v < 0).any() and (v > 0).any()  # both signs of evidence were exercised
@@ -137,10 +137,10 @@ def test_gaussmi_update_follows_its_public_code(lambda_T):
 
 def test_gaussmi_score_follows_its_public_code():
     """sum_p sum_i w_i(p) g_i at the scoring resolution, g_i = sum_k c_ik (-ln P_ik)."""
-    cfg = _cfg("gaussmi", ["baselines.gaussmi_lambda_T=0.05"])
+    cfg = _cfg("gaussmi", ["gaussmi.lambda_T=0.05"])
     m = _mapper(cfg)
     sel = GaussMISelector(cfg)
-    sel.observe(m, _noisy_obs(cfg, m, POSES[0], seed=3))
+    sel.observe(MapView(m, sel.columns), _noisy_obs(cfg, m, POSES[0], seed=3))
     Ks = sel.K_score.numpy().astype(float)
     l = m.map["gaussmi_logodds"].double().numpy()
     P = np.clip(1 / (1 + np.exp(-l)), 1e-4, 0.9999)
@@ -149,9 +149,9 @@ def test_gaussmi_score_follows_its_public_code():
     for Tc in POSES:
         ws = _weights(m, Tc, Ks, sel.width, sel.height).numpy()
         raw.append(sum(ws[i].sum() * (_ck(means[i], Tc[:3, 3]) * -np.log(P[i])).sum() for i in range(len(means))))
-    np.testing.assert_allclose(sel.view_scores(m, POSES).numpy(), raw, rtol=1e-3)  # float32 sums
+    np.testing.assert_allclose(sel.view_scores(MapView(m, sel.columns), POSES).numpy(), raw, rtol=1e-3)  # float32 sums
     # one viewpoint taken: no revisit discount yet (its inPreviousVps needs more than 5)
-    np.testing.assert_allclose(sel.score(m, POSES), raw, rtol=1e-3)
+    np.testing.assert_allclose(sel.score(MapView(m, sel.columns), POSES), raw, rtol=1e-3)
 
 
 def test_revisit_discount_follows_in_previous_vps():
@@ -177,14 +177,14 @@ def test_fisherrf_score_is_the_trace_over_all_collected_frames():
     sel = FisherRFSelector(cfg)
     train = [camera_pose(np.array([0.0, y, 1.2]), 0.0) for y in (-0.2, 0.0, 0.2)]
     for k, T in enumerate(train):
-        sel.observe(m, Observation(k, None, None, None, T))
-    H_train = [sum(parts) for parts in zip(*[sel.hessian(m, T[None]) for T in train])]  # additivity over frames
-    lam = cfg.baselines.fisherrf_lambda
+        sel.observe(MapView(m, sel.columns), Observation(k, None, None, None, T))
+    H_train = [sum(parts) for parts in zip(*[sel.hessian(MapView(m, sel.columns), T[None]) for T in train])]  # additivity over frames
+    lam = cfg.fisherrf.regularizer
     expect = []
     for Tc in POSES:
-        H_c = sel.hessian(m, Tc[None])
+        H_c = sel.hessian(MapView(m, sel.columns), Tc[None])
         expect.append(sum(float((hc.double() / (ht.double() + lam)).sum()) for hc, ht in zip(H_c, H_train)))
-    np.testing.assert_allclose(sel.score(m, POSES), expect, rtol=1e-4)
+    np.testing.assert_allclose(sel.score(MapView(m, sel.columns), POSES), expect, rtol=1e-4)
     assert all(e > 0 for e in expect)
 
 
@@ -194,7 +194,7 @@ def test_activegs_confidence_follows_its_update():
     sel = ActiveGSSelector(cfg)
     views = [POSES[0], camera_pose(np.array([0.3, 0.5, 1.3]), -0.3)]
     for k, T in enumerate(views):
-        sel.observe(m, _obs(cfg, m, T, k))
+        sel.observe(MapView(m, sel.columns), _obs(cfg, m, T, k))
     means = m.map["means"].double().numpy()
     normals = np.tile([-1.0, 0.0, 0.0], (len(means), 1))
     n_obs = np.zeros(len(means))
@@ -214,7 +214,7 @@ def test_activegs_confidence_follows_its_update():
                 S[i] += (1 - min(dist / 5, 1)) * min(max(normals[i] @ v, 0), 1)
     conf = np.where(n_obs > 0, np.clip(np.exp(1 - np.linalg.norm(vsum / np.maximum(n_obs, 1)[:, None], axis=1)) * S,
                                        0, 1), 0)
-    np.testing.assert_allclose(sel.confidence(m).numpy(), conf, rtol=1e-4, atol=1e-6)
+    np.testing.assert_allclose(sel.confidence(MapView(m, sel.columns)).numpy(), conf, rtol=1e-4, atol=1e-6)
     assert n_obs.max() == 2
 
     # utilities as its planning/confidence.py: exploitation mean((1 - C) D / 5 m) with C = 1 beyond
@@ -224,7 +224,7 @@ def test_activegs_confidence_follows_its_update():
     sel.voxels = None
     sel.observe_space(_obs(cfg, m, views[0]).depth, K, views[0])
     Ks = sel.K_score.numpy().astype(float)
-    util = sel.utilities(m, POSES)
+    util = sel.utilities(MapView(m, sel.columns), POSES)
     vm = sel.voxels
     centers, unexplored = vm.centers.numpy(), vm.unexplored.numpy()
     counts = []
@@ -324,8 +324,8 @@ def test_activegs_native_proposes_its_views_around_regions_of_interest():
     sel.attach_scene(np.array([[-1.0, -2.0, 0.0], [3.0, 2.0, 2.4]]))
     here = np.array([0.0, 0.1, 1.2])
     T = camera_pose(here, 0.0)
-    sel.observe(m, _obs(cfg, m, T))
-    pos, yaw = sel.propose(m, here, 0.0, frame=4)
+    sel.observe(MapView(m, sel.columns), _obs(cfg, m, T))
+    pos, yaw = sel.propose(MapView(m, sel.columns), here, 0.0, frame=4)
     assert len(pos) == len(yaw) == 100
     vm = sel.voxels
     free = free_with_margin(vm)
@@ -344,7 +344,7 @@ def test_activegs_native_proposes_its_views_around_regions_of_interest():
         dist = np.linalg.norm(d, axis=1)
         ahead = (dist >= 0.3 - 1e-9) & (dist <= 2.0 + 1e-9) & (np.abs(np.arctan2(d[:, 1], d[:, 0]) - y) < 1e-6)
         assert ahead.any()
-    assert np.array_equal(sel.propose(m, here, 0.0, frame=4)[0], pos)  # seeded by the frame
+    assert np.array_equal(sel.propose(MapView(m, sel.columns), here, 0.0, frame=4)[0], pos)  # seeded by the frame
     assert unexplored.any()
 
 
@@ -352,7 +352,7 @@ def test_ablations_change_exactly_their_switch():
     base = _cfg("gaussmi2d")
     m = _mapper(base)
     rel = torch.tensor(np.random.default_rng(0).normal(0, 2, (len(m.map), 2)), dtype=torch.float32)
-    GaussMI2D(base).reliability(m)[:] = rel
+    MapView(m, GaussMI2D.columns).column(GaussMI2D.COLUMN)[:] = rel
     P_neg_log = -np.log(1 / (1 + np.exp(-rel.double().numpy())))
     means = m.map["means"].double().numpy()
     normals = np.tile([-1.0, 0.0, 0.0], (len(means), 1))
@@ -374,7 +374,7 @@ def test_ablations_change_exactly_their_switch():
                 side = 0 if wi > 0 else 1
                 total += ws[i] * (abs(wi) if weighted else 1.0) * P_neg_log[i, side]
             expect.append(total)
-        np.testing.assert_allclose(sel.score(m, POSES), expect, rtol=1e-4)
+        np.testing.assert_allclose(sel.score(MapView(m, sel.columns), POSES), expect, rtol=1e-4)
     color = make_selector(_cfg("gaussmi2d_color"))
     assert color.cfg.reliability.lambda_rD == 0 and color.cfg.reliability.lambda_rNr == 0
     assert color.cfg.reliability.lambda_L == base.reliability.lambda_L

@@ -55,7 +55,7 @@ def test_chosen_scores_stay_inside_their_analytic_bounds(flights):
             assert float((l < 0).float().mean()) < 0.02  # a map that fits its frames is not unreliable
             assert chosen.max() <= NPIX * math.sqrt(2) * math.log(2) * 1.02
         elif method == "gaussmi2d":
-            rel = mission.selector.reliability(mission.mapper)
+            rel = mission.selector.reliability(mission.view)
             worst = float(-np.log(1 / (1 + np.exp(-rel.double().numpy().min()))))
             assert chosen.max() <= NPIX * worst
         elif method.startswith("activegs"):

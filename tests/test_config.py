@@ -33,7 +33,7 @@ def test_unknown_key_names_the_dotted_key(tmp_path: Path):
 @pytest.mark.parametrize("override, key", [
     ("mapper.k_new=-1", "mapper.k_new"),
     ("camera.hfov_deg=200", "camera.hfov_deg"),
-    ("selector.measurement_prior='x'", "selector.measurement_prior"),
+    ("reliability.measurement_prior='x'", "reliability.measurement_prior"),
     ("budget.frames=1.5", "budget.frames"),
     ("output.record=1", "output.record"),
     ("scene=3", "scene"),

@@ -96,16 +96,16 @@ def test_explore_score_is_the_papers_mi_plus_the_frontier_gain(tmp_path):
     explore = make_selector(cfg)
     assert isinstance(explore, GaussMI2DExplore)
     assert explore.cfg.reliability.edge_mask and not cfg.reliability.edge_mask  # its own, not the config's
-    explore.observe(mission.mapper, obs)
+    explore.observe(mission.view, obs)
     T = obs.T_wc
     poses = np.stack([T, camera_pose(T[:3, 3], math.pi / 2), camera_pose(T[:3, 3], math.pi),
                       camera_pose(T[:3, 3], -math.pi / 2)])
     frontier = explore.frontier_gain(poses)
     assert frontier[2] > frontier[0]  # behind the first view lies unseen space
-    units = frontier / (PRIOR_GAIN * cfg.selector.explore_stride ** 2)  # whole rays of P0 = 0.5 surface
+    units = frontier / (PRIOR_GAIN * cfg.explore.stride ** 2)  # whole rays of P0 = 0.5 surface
     np.testing.assert_allclose(units, np.round(units), atol=1e-9)
-    mi = explore.mutual_information(mission.mapper, poses).numpy()
-    got = explore.score(mission.mapper, poses)
+    mi = explore.mutual_information(mission.view, poses).numpy()
+    got = explore.score(mission.view, poses)
     best = int(np.argmax(mi + frontier))
     assert int(np.argmax(got)) == best
     assert got[best] == pytest.approx(mi[best] + frontier[best], rel=1e-9)

@@ -142,7 +142,7 @@ def flown():
 def test_culled_scoring_picks_the_exact_argmax(flown, kind):
     mission, poses = flown
     splats = mission.mapper.splats()
-    rel = mission.selector.reliability(mission.mapper).clone()
+    rel = mission.selector.reliability(mission.view).clone()
     N = rel.shape[0]
     g = torch.Generator().manual_seed(11)
     if kind == "all_reliable":
@@ -176,7 +176,7 @@ def test_culled_scoring_picks_the_exact_argmax(flown, kind):
 def test_kernel_scoring_equals_torch_statement_on_flown_map(flown):
     mission, poses = flown
     splats = mission.mapper.splats()
-    rel = mission.selector.reliability(mission.mapper)
+    rel = mission.selector.reliability(mission.view)
     c = mission.cfg
     K = scoring_intrinsics(c)
     w, h = c.selector.scoring_width, c.selector.scoring_height

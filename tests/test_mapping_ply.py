@@ -13,7 +13,11 @@ from flightrecon.mapping.store import GaussianMap
 
 TWO_DGS = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
            "rot_0", "rot_1", "rot_2", "rot_3"]
-COLUMNS = ["means", "quats", "log_scales", "opacity_logits", "colors", "reliability", "frame_created", "n_observed"]
+# selector columns as selectors declare them; "rotation_conf" would be taken for a rotation by 2DGS
+# loaders (they collect every property starting with "rot") if it were written under its own name
+SELECTOR_COLUMNS = {"reliability": (2,), "ags_S": (), "rotation_conf": (3,)}
+COLUMNS = ["means", "quats", "log_scales", "opacity_logits", "colors", "frame_created", "n_observed",
+           *SELECTOR_COLUMNS]
 
 
 def _map(n: int = 257) -> GaussianMap:
@@ -22,8 +26,9 @@ def _map(n: int = 257) -> GaussianMap:
     gmap.append(frame=0, means=torch.randn(n, 3, generator=g), quats=torch.randn(n, 4, generator=g),
                 log_scales=torch.randn(n, 2, generator=g) - 3, opacity_logits=torch.randn(n, generator=g),
                 colors=torch.rand(n, 3, generator=g))
-    gmap.add_column("reliability", (2,), torch.float32)  # 2D GauSS-MI's column, which the extras carry
-    gmap["reliability"][:] = torch.randn(n, 2, generator=g)
+    for name, shape in SELECTOR_COLUMNS.items():
+        gmap.add_column(name, shape, torch.float32)
+        gmap[name][:] = torch.randn(n, *shape, generator=g)
     gmap["frame_created"][:] = torch.arange(n, dtype=torch.int32) // 10
     gmap["n_observed"][:] = torch.arange(n, dtype=torch.int32) % 7
     return gmap
@@ -31,7 +36,7 @@ def _map(n: int = 257) -> GaussianMap:
 
 def test_round_trip_with_extras_is_bit_exact(tmp_path):
     gmap = _map()
-    path = save_map(gmap, tmp_path / "map.ply", extras=True)
+    path = save_map(gmap, tmp_path / "map.ply", extras=True, columns=SELECTOR_COLUMNS)
     back = load_map(path)
     assert len(back) == len(gmap)
     for name in COLUMNS:
@@ -55,11 +60,11 @@ def test_default_file_holds_the_2dgs_columns_alone(tmp_path):
 
 def test_file_has_2dgs_layout_and_opens_in_trimesh(tmp_path):
     gmap = _map()
-    path = save_map(gmap, tmp_path / "map.ply", extras=True)
+    path = save_map(gmap, tmp_path / "map.ply", extras=True, columns=SELECTOR_COLUMNS)
     v = PlyData.read(str(path))["vertex"]
     names = [p.name for p in v.properties]
     assert names[:16] == TWO_DGS
-    assert {"reliability_front", "reliability_back"} <= set(names)
+    assert {"col_reliability_0", "col_reliability_1", "col_ags_S", "col_rotation_conf_2"} <= set(names)
     assert "scale_2" not in names
     q = gmap["quats"].numpy()
     np.testing.assert_allclose(np.stack([v["nx"], v["ny"], v["nz"]], 1), quat_to_rotmat(q)[:, :, 2], atol=1e-6)
@@ -85,6 +90,37 @@ def test_plain_2dgs_file_loads_colors_from_sh(tmp_path):
     gmap = load_map(path)
     np.testing.assert_allclose(gmap["colors"][:, 2].numpy(), 0.8, atol=1e-6)
     assert "reliability" not in gmap
+
+
+def _reference_2dgs_read(path, sh_degree: int) -> dict:
+    """What the reference 2DGS loader (GaussianModel.load_ply of its public code) takes from a file, by
+    its documented rules: x y z, opacity, f_dc_0..2, every property starting with f_rest_ (exactly
+    3 (d+1)^2 - 3 of them), with scale_ (first two kept) and with rot, each sorted by trailing number."""
+    v = PlyData.read(str(path))["vertex"]
+    names = [p.name for p in v.properties]
+    def starting(prefix):
+        return sorted((n for n in names if n.startswith(prefix)), key=lambda n: int(n.split("_")[-1]))
+    rest = starting("f_rest_")
+    if len(rest) != 3 * (sh_degree + 1) ** 2 - 3:
+        raise AssertionError(f"{len(rest)} f_rest properties for SH degree {sh_degree}")
+    return {"xyz": np.stack([v["x"], v["y"], v["z"]], 1), "opacity": np.asarray(v["opacity"]),
+            "f_dc": np.stack([v[f"f_dc_{i}"] for i in range(3)], 1),
+            "scales": np.stack([v[n] for n in starting("scale_")], 1)[:, :2],
+            "rots": np.stack([v[n] for n in starting("rot")], 1)}
+
+
+@pytest.mark.parametrize("extras", [False, True])
+def test_reference_2dgs_loader_reads_the_file_at_sh_degree_0(tmp_path, extras):
+    gmap = _map()
+    path = save_map(gmap, tmp_path / "map.ply", extras=extras, columns=SELECTOR_COLUMNS)
+    got = _reference_2dgs_read(path, sh_degree=0)
+    np.testing.assert_array_equal(got["xyz"], gmap["means"].numpy())
+    np.testing.assert_array_equal(got["scales"], gmap["log_scales"].numpy())
+    np.testing.assert_array_equal(got["rots"], gmap["quats"].numpy())  # four, selector columns not among them
+    np.testing.assert_array_equal(got["opacity"], gmap["opacity_logits"].numpy())
+    np.testing.assert_allclose(got["f_dc"] * SH_C0 + 0.5, gmap["colors"].numpy(), atol=1e-6)
+    with pytest.raises(AssertionError, match="0 f_rest properties for SH degree 3"):
+        _reference_2dgs_read(path, sh_degree=3)  # its default degree needs --sh_degree 0 (docs/outputs.md)
 
 
 def test_bad_files_raise_data_error_naming_the_file(tmp_path):

@@ -120,13 +120,11 @@ def test_a_non_finite_map_names_the_frame_the_stage_and_the_column(tmp_path):
 
     cfg = load_config("demo", TINY + ["budget.frames=3", "budget.initial_views=3"])
     mission = Mission(cfg, tmp_path, progress=False)
-    mission._take_off()
-    mission._step(last=False)
-    mission.state.frame = 1
+    mission.step()
     mission.mapper.map["quats"][7] = float("nan")
     with pytest.raises(DataError, match=r"^frame 1, stage mapping: render: quats contains NaN or inf"):
-        mission._step(last=False)
+        mission.step()
     mission.mapper.map["quats"][7] = 1.0
-    mission.selector.reliability(mission.mapper)[4, 1] = float("inf")
+    mission.selector.reliability(mission.view)[4, 1] = float("inf")
     with pytest.raises(DataError, match=r"map column 'reliability' holds NaN or inf at 1 of \d+ splats \(first: splat 4\)"):
         mission.mapper.map.check_finite()

@@ -15,7 +15,7 @@ import torch
 from skimage.metrics import structural_similarity
 
 from flightrecon.active import reliability
-from flightrecon.config import ReliabilityConfig
+from flightrecon.active.reliability import ReliabilityConfig
 from flightrecon.geometry import camera_pose, intrinsics, pixel_rays, rotmat_to_quat
 from flightrecon.mapping.losses import frame_target, training_loss
 from flightrecon.render import render, render_view_with_sums

@@ -15,7 +15,7 @@ TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "sel
         "evaluation.views=2", "evaluation.every=1", "metrics.tsdf_voxel=0.05", "metrics.tsdf_truncation=0.15",
         "metrics.sample_points=5000"]
 
-TABLES = [f"{t}.{ext}" for t in ("overall", "paired", "per_scene", "efficiency", "ranking")
+TABLES = [f"{t}.{ext}" for t in ("overall", "paired_gaussmi2d", "per_scene", "efficiency", "ranking")
           for ext in ("md", "csv", "tex")] + ["summary.md"]
 FIGURES = ["quality_over_frames.png", "candidate_time_over_frames.png", "quality_vs_time.png", "novel_views.png"]
 
@@ -62,7 +62,7 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
         assert (report / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     overall = (report / "overall.md").read_text()
     assert "| gaussmi2d |" in overall and "| random |" in overall
-    paired = (report / "paired.md").read_text()  # one seed: a difference without an interval
+    paired = (report / "paired_gaussmi2d.md").read_text()  # one seed: a difference without an interval
     diff = recs[1]["psnr"] - recs[0]["psnr"] if recs[1]["method"] == "random" else recs[0]["psnr"] - recs[1]["psnr"]
     assert f"| random | all | {diff:.2f} |" in paired and "| random | room0 |" in paired
     summary = (report / "summary.md").read_text()
@@ -172,7 +172,7 @@ def test_tables_say_loudly_when_their_runs_mix_code_states(tmp_path):
     recs = [_table_record("gaussmi2d", "a", 0, 20.0, ["c1"]), _table_record("random", "a", 0, 21.0, ["c1", "c2"]),
             _table_record("gaussmi2d", "b", 0, 22.0, ["unstamped"]), _table_record("random", "b", 0, 23.0, ["c1"])]
     write_tables(recs, tmp_path)
-    for name in ("overall.md", "paired.md", "per_scene.md", "efficiency.md"):
+    for name in ("overall.md", "paired_gaussmi2d.md", "per_scene.md", "efficiency.md"):
         assert "MIXED CODE" in (tmp_path / name).read_text().splitlines()[0], name
     summary = (tmp_path / "summary.md").read_text()
     assert "**MIXED CODE" in summary and "- c1: 3 run(s)" in summary and "- unstamped: 1 run(s)" in summary

@@ -40,37 +40,37 @@ class TracedGaussMI(baselines.GaussMISelector):
         self.rows: list[dict] = []
         self.image_dir = image_dir
 
-    def observe(self, mapper, obs):
+    def observe(self, view, obs):
         row = {"frame": obs.index}
-        if len(mapper.map):
-            out = capture_view(mapper, obs).output
+        if len(view):
+            out = capture_view(view, obs).output
             with torch.no_grad():
-                rgb = float_tensor(obs.rgb, mapper.device)
-                d_obs = float_tensor(obs.depth, mapper.device)[..., None]
+                rgb = float_tensor(obs.rgb, view.device)
+                d_obs = float_tensor(obs.depth, view.device)[..., None]
                 depth = out.depth[0] * out.alpha[0] if out.alpha is not None else out.depth[0]
                 L = baselines.gaussmi_loss_image(out.features[0].detach(), depth.detach(), rgb, d_obs)
-            negative = (self.cfg.baselines.gaussmi_lambda_L * L > 1).numpy()
+            negative = (self.cfg.gaussmi.lambda_L * L > 1).numpy()
             row["negative_evidence_pixels"] = float(negative.mean())
             if self.image_dir is not None:
                 _save_evidence(self.image_dir / f"evidence_{obs.index:03d}.png", negative)
-        diag = super().observe(mapper, obs)
-        l = mapper.map[self.COLUMN]
+        diag = super().observe(view, obs)
+        l = view.column(self.COLUMN)
         row.update({"n_splats": len(l), "logodds_below_0": float((l < 0).float().mean()),
                     "logodds_at_or_below_-5": float((l <= -5).float().mean()),
                     "logodds_above_0": float((l > 0).float().mean()), "updated": diag.get("updated", 0)})
         self.rows.append(row)
         return diag
 
-    def score(self, mapper, poses, lengths=None):
-        scores = super().score(mapper, poses, lengths)
+    def score(self, view, poses, lengths=None):
+        scores = super().score(view, poses, lengths)
         best = int(np.argmax(scores))
-        sp = mapper.splats()
-        logodds = mapper.map[self.COLUMN]
-        T = float_tensor(poses[best:best + 1], mapper.device)
+        sp = view.splats()
+        logodds = view.column(self.COLUMN)
+        T = float_tensor(poses[best:best + 1], view.device)
         gain = baselines.gaussmi_gain(logodds, baselines.direction_weights(sp["means"], T[:, :3, 3]))[..., None]
         with torch.no_grad():
-            _, out = next(render_candidates(sp, gain, T, self.K_score, self.width, self.height, near=mapper.near,
-                                            far=mapper.far, backend=self.cfg.mapper.backend))
+            _, out = next(render_candidates(sp, gain, T, self.K_score, self.width, self.height, near=view.near,
+                                            far=view.far, backend=self.cfg.mapper.backend))
         self.rows[-1].update({"chosen_score": float(scores[best]), "pixels": self.width * self.height,
                               "max_pixel_score": float(out.features.max())})
         return scores

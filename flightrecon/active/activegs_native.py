@@ -21,8 +21,8 @@ import torch
 from scipy.ndimage import binary_dilation, generate_binary_structure
 
 from flightrecon.active.baselines import ActiveGSSelector, VoxelMap
+from flightrecon.active.protocol import MapView
 from flightrecon.active.reliability import splat_normals
-from flightrecon.mapping.mapper import OnlineMapper
 
 ALL_VIEWS, ROI_VIEWS, VIEWS_PER_ROI = 100, 30, 5  # its sample_num, max_roi_sample_num, sample_per_roi
 ROI_NEAR, ROI_FAR, ROI_COSINE = 0.3, 2.0, 0.5  # m, m, cosine to the region's facing direction
@@ -113,7 +113,7 @@ class ActiveGSNative(ActiveGSSelector):
 
     name = "activegs_native"
 
-    def propose(self, mapper: OnlineMapper, position: np.ndarray, yaw: float,
+    def propose(self, view: MapView, position: np.ndarray, yaw: float,
                 frame: int) -> tuple[np.ndarray, np.ndarray]:
         """Candidate positions [V,3] and headings [V] for this step (none before the first frame)."""
         vm = self.voxels
@@ -122,9 +122,9 @@ class ActiveGSNative(ActiveGSSelector):
         rng = np.random.default_rng([self.cfg.seed, frame, 104723])
         free = free_with_margin(vm)
         free_points = vm.centers.numpy()[free]
-        sp = mapper.splats()
-        if len(mapper.map):
-            roi, normals = regions_of_interest(vm, sp["means"], splat_normals(sp["quats"]), self.confidence(mapper),
+        sp = view.splats()
+        if len(view):
+            roi, normals = regions_of_interest(vm, sp["means"], splat_normals(sp["quats"]), self.confidence(view),
                                                torch.sigmoid(sp["opacity_logits"]))
         else:
             roi, normals = np.zeros(0, int), np.zeros((0, 3))

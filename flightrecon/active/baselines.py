@@ -2,9 +2,9 @@
 
 All of them share our online 2DGS mapper, our planner and our candidate library (the loop hands
 every selector the same feasible candidates), so a comparison isolates the selection criterion.
-Per-splat state lives in columns each selector adds to the GaussianMap (`protocol.ensure_column`),
-so it stays aligned with the splats through growth and pruning. None of them keeps 2D reliability,
-so `reliable_share` is 0 and the stopping rule never stops them.
+Per-splat state lives in the map columns each selector declares, so it stays aligned with the
+splats through growth and pruning. None of them keeps 2D reliability, so none has a stopping
+statistic and the stopping rule does not apply to them.
 
 - `gaussmi` (Xie and Pan, RSS 2025): four world-horizontal reliability log-odds per splat
   [+x, +y, -x, -y], updated from its loss image L = 0.95 |I - I_obs| + 0.05 |D_acc - D_obs|; view
@@ -26,16 +26,16 @@ so `reliable_share` is 0 and the stopping rule never stops them.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
 from flightrecon.active.candidate_views import render_candidates
-from flightrecon.active.protocol import Observation, capture_view, ensure_column, float_tensor, scoring_intrinsics
+from flightrecon.active.protocol import MapView, Observation, Selector, capture_view, float_tensor, scoring_intrinsics
 from flightrecon.active.reliability import observation_weights, splat_normals
-from flightrecon.config import ScenarioConfig
+from flightrecon.config import ScenarioConfig, option
 from flightrecon.geometry import pixel_rays, yaw_of_camera
-from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.render import FisherDiag, render_fisher_diag
 
 EXPLORE_RANGE = 5.0  # m, ActiveGS's utility range
@@ -49,15 +49,44 @@ GAUSSMI_FREE_VIEWS = 5  # no revisit discount while at most this many viewpoints
 GAUSSMI_KEPT_VIEWS = 100  # max_num_previous_vps
 
 
-class _Scoring:
+@dataclass(frozen=True)
+class GaussMIConfig:
+    """`[gaussmi]`: GauSS-MI's tuned weights (its public configs)."""
+
+    lambda_L: float = option(1.7, 1e-6, 1e6, doc="loss-image scale")
+    lambda_T: float = option(10.0, 0.0, 1e6, doc="evidence weight")
+    moved_from = {"baselines.gaussmi_lambda_L": "lambda_L", "baselines.gaussmi_lambda_T": "lambda_T"}
+
+
+@dataclass(frozen=True)
+class FisherRFConfig:
+    """`[fisherrf]`: FisherRF's Hessian regularizer."""
+
+    regularizer: float = option(1e-6, 0.0, 1e3, doc="lambda added to the training views' Hessian diagonal")
+    moved_from = {"baselines.fisherrf_lambda": "regularizer"}
+
+
+@dataclass(frozen=True)
+class ActiveGSConfig:
+    """`[activegs]`: ActiveGS's exploration grid and path term (activegs and activegs_native)."""
+
+    voxel: float = option(0.2, 0.02, 2.0, doc="exploration voxel size (m)")
+    extent: list = option([16.0, 16.0, 5.0], doc="voxel grid size around the first camera (m), only for a "
+                          "selector driven without a scene; in a flight its grid spans the scene")
+    path_weight: float = option(0.5, 0.0, 100.0, doc="path-length term weight")
+    moved_from = {"baselines.activegs_voxel": "voxel", "baselines.activegs_extent": "extent",
+                  "baselines.activegs_path_weight": "path_weight"}
+
+
+class _Scoring(Selector):
     """Shared: the scoring intrinsics of the config's camera at the selector's scoring resolution."""
 
+    role = "baseline"
+
     def __init__(self, cfg: ScenarioConfig, width: int | None = None, height: int | None = None) -> None:
+        super().__init__(cfg)
         self.width, self.height = width or cfg.selector.scoring_width, height or cfg.selector.scoring_height
         self.K_score = scoring_intrinsics(cfg, self.width, self.height)
-
-    def reliable_share(self, mapper: OnlineMapper) -> float:
-        return 0.0
 
 
 # ---------------------------------------------------------------------------------- GauSS-MI
@@ -119,54 +148,65 @@ def revisit_discount(position: np.ndarray, yaw: float, visited: list[tuple[np.nd
 
 
 class GaussMISelector(_Scoring):
+    """GauSS-MI (Xie and Pan, RSS 2025): four world-horizontal reliabilities per splat."""
+
     name = "gaussmi"
+    section, settings = "gaussmi", GaussMIConfig
     COLUMN = "gaussmi_logodds"
+    columns = {COLUMN: (4,)}  # world-horizontal log-odds [+x, +y, -x, -y]
 
     def __init__(self, cfg: ScenarioConfig) -> None:
         super().__init__(cfg)
-        self.cfg = cfg
         self.visited: list[tuple[np.ndarray, float]] = []
 
     @torch.no_grad()
-    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
-        b = self.cfg.baselines
-        dev = mapper.device
-        logodds = ensure_column(mapper, self.COLUMN, (4,))
+    def observe(self, view: MapView, obs: Observation) -> dict:
+        b = self.cfg.gaussmi
+        dev = view.device
+        logodds = view.column(self.COLUMN)
         self.visited = (self.visited + [(np.asarray(obs.T_wc[:3, 3], float), yaw_of_camera(obs.T_wc))])[-GAUSSMI_KEPT_VIEWS:]
-        if len(mapper.map) == 0:
+        if len(view) == 0:
             return {}
-        sp = mapper.splats()
+        sp = view.splats()
         T = float_tensor(obs.T_wc, dev)
-        view = capture_view(mapper, obs)
+        view = capture_view(view, obs)
         out = view.output
         L = gaussmi_loss_image(out.features[0], out.depth[0] * out.alpha[0], float_tensor(obs.rgb, dev),
                                float_tensor(obs.depth, dev)[..., None])
-        S = view.splat_sums(gaussmi_evidence(L, b.gaussmi_lambda_L))
+        S = view.splat_sums(gaussmi_evidence(L, b.lambda_L))
         touch = view.splat_sums(torch.ones_like(L)) >= GAUSSMI_MIN_WEIGHT
         c = direction_weights(sp["means"], T[None, :3, 3])[0]
-        logodds[:] = gaussmi_logodds_update(logodds, c, S, touch, b.gaussmi_lambda_T)
+        logodds[:] = gaussmi_logodds_update(logodds, c, S, touch, b.lambda_T)
         return {"updated": int(touch.sum()), "negative_share": float((logodds < 0).any(-1).float().mean())}
 
     @torch.no_grad()
-    def view_scores(self, mapper: OnlineMapper, poses: np.ndarray) -> torch.Tensor:
+    def view_scores(self, view: MapView, poses: np.ndarray) -> torch.Tensor:
         """sum_p sum_i w_i(p) g_i per candidate (before the revisit discount)."""
-        dev = mapper.device
-        if len(mapper.map) == 0:
+        dev = view.device
+        if len(view) == 0:
             return torch.zeros(len(poses), dtype=torch.float64)
-        sp = mapper.splats()
-        logodds = ensure_column(mapper, self.COLUMN, (4,))
+        sp = view.splats()
+        logodds = view.column(self.COLUMN)
         scores = torch.zeros(len(poses), dtype=torch.float64)
         gain = lambda Tc: gaussmi_gain(logodds, direction_weights(sp["means"], Tc[:, :3, 3]))[..., None]  # noqa: E731
         for cams, out in render_candidates(sp, gain, float_tensor(poses, dev), self.K_score.to(dev), self.width,
-                                           self.height, near=mapper.near, far=mapper.far,
+                                           self.height, near=view.near, far=view.far,
                                            backend=self.cfg.mapper.backend):
             scores[cams] = out.features[..., 0].double().sum(dim=(1, 2)).cpu()
         return scores
 
-    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
-        raw = self.view_scores(mapper, poses).numpy()
+    def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
+        raw = self.view_scores(view, poses).numpy()
         disc = np.array([revisit_discount(T[:3, 3], yaw_of_camera(T), self.visited) for T in poses])
         return raw * (1.0 - disc)
+
+    def get_state(self) -> dict:
+        return {"visited_positions": np.array([p for p, _ in self.visited]).reshape(-1, 3),
+                "visited_yaws": [y for _, y in self.visited]}
+
+    def set_state(self, state: dict) -> None:
+        self.visited = [(np.asarray(p, float), float(y))
+                        for p, y in zip(state["visited_positions"], state["visited_yaws"])]
 
 # ---------------------------------------------------------------------------------- FisherRF
 def fisher_scores(H_cams: FisherDiag, H_train: FisherDiag, lam: float) -> torch.Tensor:
@@ -175,43 +215,51 @@ def fisher_scores(H_cams: FisherDiag, H_train: FisherDiag, lam: float) -> torch.
 
 
 class FisherRFSelector(_Scoring):
+    """FisherRF (Jiang et al., ECCV 2024): expected information from the diagonal Hessian."""
+
     name = "fisherrf"
+    section, settings = "fisherrf", FisherRFConfig
     CHUNK_BYTES = 256 << 20  # per Hessian call: the kernel's [C,N,66] buffer plus the pairs' G and J
 
     def __init__(self, cfg: ScenarioConfig) -> None:
         super().__init__(cfg)
-        self.cfg = cfg
         self.train_poses: list[np.ndarray] = []
 
-    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
+    def observe(self, view: MapView, obs: Observation) -> dict:
         self.train_poses.append(np.asarray(obs.T_wc, np.float32))
         return {}
 
-    def _chunks(self, mapper: OnlineMapper, poses: np.ndarray, reduce: bool):
+    def _chunks(self, view: MapView, poses: np.ndarray, reduce: bool):
         """Diagonal Hessians of the views T_wc [V,4,4], a chunk of cameras per kernel call (sized so
         a call stays within CHUNK_BYTES, about 1 KB per camera and splat)."""
-        sp = mapper.splats()
-        step = int(min(64, max(1, self.CHUNK_BYTES // (1024 * max(1, len(mapper.map))))))
-        K = self.K_score.to(mapper.device)
+        sp = view.splats()
+        step = int(min(64, max(1, self.CHUNK_BYTES // (1024 * max(1, len(view))))))
+        K = self.K_score.to(view.device)
         for s in range(0, len(poses), step):
-            vm = torch.linalg.inv(float_tensor(poses[s:s + step], mapper.device))
+            vm = torch.linalg.inv(float_tensor(poses[s:s + step], view.device))
             yield render_fisher_diag(sp["means"], sp["quats"], sp["log_scales"], sp["opacity_logits"],
                                      sp["colors"], vm, K[None].expand(vm.shape[0], 3, 3).contiguous(),
-                                     self.width, self.height, mapper.near, mapper.far, reduce=reduce)
+                                     self.width, self.height, view.near, view.far, reduce=reduce)
 
-    def hessian(self, mapper: OnlineMapper, poses: np.ndarray) -> FisherDiag:
+    def hessian(self, view: MapView, poses: np.ndarray) -> FisherDiag:
         """Diagonal Hessian (position, color, scale, opacity) summed over the views T_wc [V,4,4]."""
-        parts = list(self._chunks(mapper, poses, reduce=True))
+        parts = list(self._chunks(view, poses, reduce=True))
         return FisherDiag(*(sum(fields) for fields in zip(*parts)))
 
     @torch.no_grad()
-    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
-        if len(mapper.map) == 0 or not self.train_poses:
+    def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
+        if len(view) == 0 or not self.train_poses:
             return np.zeros(len(poses))
-        H_train = self.hessian(mapper, np.stack(self.train_poses))
-        lam = self.cfg.baselines.fisherrf_lambda
-        scores = [fisher_scores(h, H_train, lam) for h in self._chunks(mapper, np.asarray(poses), reduce=False)]
+        H_train = self.hessian(view, np.stack(self.train_poses))
+        lam = self.cfg.fisherrf.regularizer
+        scores = [fisher_scores(h, H_train, lam) for h in self._chunks(view, np.asarray(poses), reduce=False)]
         return torch.cat(scores).cpu().numpy()
+
+    def get_state(self) -> dict:
+        return {"train_poses": np.array(self.train_poses, np.float32).reshape(-1, 4, 4)}
+
+    def set_state(self, state: dict) -> None:
+        self.train_poses = list(np.asarray(state["train_poses"], np.float32))
 
 
 # ---------------------------------------------------------------------------------- ActiveGS
@@ -323,13 +371,16 @@ def activegs_combine(utility: np.ndarray, lengths: np.ndarray, path_weight: floa
 
 
 class ActiveGSSelector(_Scoring):
+    """ActiveGS (Jin et al., RA-L 2025): exploration and surfel-confidence utility, path term."""
+
     name = "activegs"
+    section, settings = "activegs", ActiveGSConfig
     SEEN_WEIGHT = 0.03
+    columns = {"ags_nobs": (), "ags_vsum": (3,), "ags_S": ()}  # surfel observations, view-direction sum, S
 
     def __init__(self, cfg: ScenarioConfig) -> None:
         c = cfg.camera
         super().__init__(cfg, max(1, c.width // 4), max(1, c.height // 4))  # ActiveGS: quarter resolution
-        self.cfg = cfg
         self.voxels: VoxelMap | None = None
         self.bounds: np.ndarray | None = None  # the scene's box (2,3), set by the loop (`attach_scene`)
         self.last_center: np.ndarray | None = None
@@ -339,33 +390,31 @@ class ActiveGSSelector(_Scoring):
         """The scene's bounding box (2,3): ActiveGS's voxel map spans its scene."""
         self.bounds = np.asarray(bounds, float)
 
-    def confidence(self, mapper: OnlineMapper) -> torch.Tensor:
-        return surfel_confidence(ensure_column(mapper, "ags_nobs", ()), ensure_column(mapper, "ags_vsum", (3,)),
-                                 ensure_column(mapper, "ags_S", ()))
+    def confidence(self, view: MapView) -> torch.Tensor:
+        return surfel_confidence(view.column("ags_nobs"), view.column("ags_vsum"), view.column("ags_S"))
 
     def observe_space(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> None:
         """Integrate one depth frame into the voxel map (made on the first frame: over the scene's box,
-        or, for a selector driven without a scene, `baselines.activegs_extent` around the camera)."""
-        b = self.cfg.baselines
+        or, for a selector driven without a scene, `activegs.extent` around the camera)."""
+        b = self.cfg.activegs
         if self.voxels is None:
             if self.bounds is None:
-                half = 0.5 * np.asarray(b.activegs_extent, float)
+                half = 0.5 * np.asarray(b.extent, float)
                 self.bounds = np.stack([T_wc[:3, 3] - half, T_wc[:3, 3] + half])
-            self.voxels = VoxelMap(self.bounds[0], self.bounds[1], b.activegs_voxel)
+            self.voxels = VoxelMap(self.bounds[0], self.bounds[1], b.voxel)
         self.voxels.integrate(depth, K, T_wc)
         self.last_center = np.asarray(T_wc[:3, 3], float)
 
-    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
+    def observe(self, view: MapView, obs: Observation) -> dict:
         self.observe_space(obs.depth, obs.K, obs.T_wc)
-        n_obs, v_sum, S = (ensure_column(mapper, "ags_nobs", ()), ensure_column(mapper, "ags_vsum", (3,)),
-                           ensure_column(mapper, "ags_S", ()))
-        if len(mapper.map) == 0:
+        n_obs, v_sum, S = view.column("ags_nobs"), view.column("ags_vsum"), view.column("ags_S")
+        if len(view) == 0:
             return {}
-        dev = mapper.device
-        sp = mapper.splats()
+        dev = view.device
+        sp = view.splats()
         T = float_tensor(obs.T_wc, dev)
         H, W = obs.depth.shape
-        weight = capture_view(mapper, obs).splat_sums(torch.ones(H, W, device=dev))
+        weight = capture_view(view, obs).splat_sums(torch.ones(H, W, device=dev))
         to_cam = T[:3, 3][None] - sp["means"]
         dist = to_cam.norm(dim=-1)
         v = to_cam / dist.clamp_min(1e-9)[:, None]
@@ -377,13 +426,13 @@ class ActiveGSSelector(_Scoring):
         return {"seen": int(seen.sum())}
 
     @torch.no_grad()
-    def utilities(self, mapper: OnlineMapper, poses: np.ndarray) -> np.ndarray:
+    def utilities(self, view: MapView, poses: np.ndarray) -> np.ndarray:
         """U = 1000 U_explore + U_exploit per candidate (before normalization and path term), from one
         render per candidate at quarter resolution (its planning/confidence.py)."""
         K = self.K_score.numpy().astype(float)
         explore, exploit = np.zeros(len(poses)), np.zeros(len(poses))
         R = EXPLORE_RANGE
-        for cams, D, C in self._renders(mapper, poses):
+        for cams, D, C in self._renders(view, poses):
             if self.voxels is not None:
                 explore[cams] = self.voxels.visible_unexplored(poses[cams], K, D) / self.voxels.size_total
             C = torch.where(D > R, torch.ones_like(D), C)
@@ -391,23 +440,38 @@ class ActiveGSSelector(_Scoring):
             exploit[cams] = ((1 - C) * D_surface / R).mean(dim=(1, 2)).double().numpy()
         return 1000.0 * explore + exploit
 
-    def _renders(self, mapper: OnlineMapper, poses: np.ndarray):
+    def _renders(self, view: MapView, poses: np.ndarray):
         """(cameras, depth [c,H,W], confidence [c,H,W]) of the map at the candidates, on the CPU; an
         empty map renders no surface anywhere."""
-        if len(mapper.map) == 0:
+        if len(view) == 0:
             zeros = torch.zeros(len(poses), self.height, self.width)
             yield slice(0, len(poses)), zeros, zeros
             return
-        dev = mapper.device
-        for cams, out in render_candidates(mapper.splats(), self.confidence(mapper)[:, None], float_tensor(poses, dev),
-                                           self.K_score.to(dev), self.width, self.height, near=mapper.near,
-                                           far=mapper.far, outputs=("features", "depth"),
+        dev = view.device
+        for cams, out in render_candidates(view.splats(), self.confidence(view)[:, None], float_tensor(poses, dev),
+                                           self.K_score.to(dev), self.width, self.height, near=view.near,
+                                           far=view.far, outputs=("features", "depth"),
                                            backend=self.cfg.mapper.backend):
             yield cams, out.depth[..., 0].cpu(), out.features[..., 0].cpu()
 
-    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
+    def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         if lengths is None:  # the loop did not pass planned lengths: straight line from the last view
             ref = self.last_center if self.last_center is not None else np.zeros(3)
             lengths = np.linalg.norm(np.asarray(poses)[:, :3, 3] - ref, axis=-1)
-        return activegs_combine(self.utilities(mapper, poses), np.asarray(lengths, float),
-                                self.cfg.baselines.activegs_path_weight, self.rng)
+        return activegs_combine(self.utilities(view, poses), np.asarray(lengths, float),
+                                self.cfg.activegs.path_weight, self.rng)
+
+    def get_state(self) -> dict:
+        state = {"rng": self.rng.bit_generator.state, "bounds": self.bounds, "last_center": self.last_center}
+        if self.voxels is not None:
+            state["voxels"] = {"logodds": self.voxels.logodds, "unexplored": self.voxels.unexplored}
+        return state
+
+    def set_state(self, state: dict) -> None:
+        self.rng.bit_generator.state = state["rng"]
+        self.bounds = None if state["bounds"] is None else np.asarray(state["bounds"], float)
+        self.last_center = None if state["last_center"] is None else np.asarray(state["last_center"], float)
+        if "voxels" in state:
+            self.voxels = VoxelMap(self.bounds[0], self.bounds[1], self.cfg.activegs.voxel)
+            self.voxels.logodds = torch.as_tensor(state["voxels"]["logodds"], dtype=torch.float64).clone()
+            self.voxels.unexplored = torch.as_tensor(state["voxels"]["unexplored"], dtype=torch.bool).clone()

@@ -6,7 +6,7 @@ paper's method reaching less of the room's surface than ActiveGS for that reason
 treats the unknown space at the frontier of an occupancy map as surface not yet reconstructed:
 each scoring pixel whose ray crosses unknown space (UNKNOWN_VOXELS of it, so the thin uncarved band
 in front of every seen surface does not count) before an occupied voxel, within
-`selector.explore_range`, counts as one more splat with the prior reliability P0 = 0.5 (the
+`explore.range`, counts as one more splat with the prior reliability P0 = 0.5 (the
 paper's initial value) and full transmittance. Its gain is Eq. 21 with
 that prior, -|w| log 0.5, where the unknown surface's normal is unknown: |w| is replaced by its
 mean over isotropic normals, E|cos| = 1/2. The splats' MI is the paper's.
@@ -17,10 +17,10 @@ of four held-out scene variants the drone re-captured the same view 29 times in 
 by splats whose evidence at occlusion edges stayed negative (93% of the chosen views' MI, 76% of it
 on edge pixels); with the mask it did not (results/ranking/dev_sceneseed1).
 
-The occupancy map is the selector's own (planning.occupancy.OccupancyMap at `selector.explore_voxel`,
-a box of `selector.explore_extent` around the first camera), fed every captured depth frame; it
+The occupancy map is the selector's own (planning.occupancy.OccupancyMap at `explore.voxel`,
+a box of `explore.extent` around the first camera), fed every captured depth frame; it
 does not share the planner's, which may be the ground-truth scene. A pixel with no depth return saw
-no surface within the camera's range, so its ray carves free space out to `explore_range` (the
+no surface within the camera's range, so its ray carves free space out to `explore.range` (the
 planner's map, more careful, carves nothing there); without that, space seen through a window or
 door would stay unknown and draw the drone forever. Rays start at the camera's near plane: a
 candidate may hover closer to a wall than any fixed radius (the planner keeps only the required
@@ -29,23 +29,36 @@ clearance), and a ray started behind the wall would count the unseen space beyon
 
 from __future__ import annotations
 
-import dataclasses
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from flightrecon.active.protocol import Observation
+from flightrecon.active.protocol import MapView, Observation
 from flightrecon.active.selectors import GaussMI2D
-from flightrecon.config import ScenarioConfig
+from flightrecon.config import ScenarioConfig, option
 from flightrecon.geometry import pixel_rays
-from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.planning.occupancy import OccupancyMap
 
 PRIOR_GAIN = -0.5 * math.log(0.5)  # -E|w| log P0 per pixel: Eq. 21 for unseen surface
 UNKNOWN_VOXELS = 3  # unknown space a ray must cross to count: more than the uncarved band of about one
 # voxel that the occupancy update leaves in front of every seen surface
 CAMERAS_PER_CALL = 16  # candidates whose rays are marched together (bounds the sample array)
+
+
+@dataclass(frozen=True)
+class ExploreConfig:
+    """`[explore]`: the frontier term of gaussmi2d_explore (its reliability and MI read `[reliability]`)."""
+
+    voxel: float = option(0.1, 0.02, 1.0, doc="voxel of its own occupancy map (m)")
+    extent: list = option([16.0, 16.0, 5.0], doc="occupancy grid size around the first camera (m)")
+    range: float = option(5.0, 0.1, 100.0, doc="unknown space farther than this along a scoring ray is worth "
+                          "nothing (m)")
+    stride: int = option(4, 1, 64, doc="one frontier ray per this many scoring pixels in each direction, "
+                         "weighted by the pixels it stands for")
+    moved_from = {"selector.explore_voxel": "voxel", "selector.explore_extent": "extent",
+                  "selector.explore_range": "range", "selector.explore_stride": "stride"}
 
 
 def frontier_pixels(occupancy: OccupancyMap, T_wc: np.ndarray, K: np.ndarray, width: int, height: int, *,
@@ -78,19 +91,20 @@ class GaussMI2DExplore(GaussMI2D):
     """The paper's 2D GauSS-MI plus the frontier gain of unseen space (module docstring)."""
 
     name = "gaussmi2d_explore"
+    section, settings = "explore", ExploreConfig
 
     def __init__(self, cfg: ScenarioConfig) -> None:
-        super().__init__(dataclasses.replace(cfg, reliability=dataclasses.replace(cfg.reliability, edge_mask=True)))
+        super().__init__(cfg.with_section("reliability", edge_mask=True))
         self.occupancy: OccupancyMap | None = None
 
-    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
-        diag = super().observe(mapper, obs)
-        s = self.cfg.selector
+    def observe(self, view: MapView, obs: Observation) -> dict:
+        diag = super().observe(view, obs)
+        s = self.cfg.explore
         center = np.asarray(obs.T_wc, float)[:3, 3]
         if self.occupancy is None:
-            half = 0.5 * np.asarray(s.explore_extent, float)
-            self.occupancy = OccupancyMap(np.stack([center - half, center + half]), s.explore_voxel)
-        integrate_seen_space(self.occupancy, obs.depth, obs.K, obs.T_wc, s.explore_range + 2 * s.explore_voxel)
+            half = 0.5 * np.asarray(s.extent, float)
+            self.occupancy = OccupancyMap(np.stack([center - half, center + half]), s.voxel)
+        integrate_seen_space(self.occupancy, obs.depth, obs.K, obs.T_wc, s.range + 2 * s.voxel)
         self.occupancy.mark_free_sphere(center, self.cfg.drone.body_radius)  # its own body proves this empty
         return diag
 
@@ -98,12 +112,22 @@ class GaussMI2DExplore(GaussMI2D):
         """The unseen-surface term [C] of each candidate camera T_wc [C,4,4], in MI units."""
         if self.occupancy is None:
             return np.zeros(len(poses))
-        s = self.cfg.selector
-        px = frontier_pixels(self.occupancy, poses, self.K_score.numpy(), s.scoring_width, s.scoring_height,
-                             t_min=self.cfg.camera.near, t_max=s.explore_range,
-                             min_unknown=UNKNOWN_VOXELS * s.explore_voxel, stride=s.explore_stride)
+        s, c = self.cfg.explore, self.cfg.selector
+        px = frontier_pixels(self.occupancy, poses, self.K_score.numpy(), c.scoring_width, c.scoring_height,
+                             t_min=self.cfg.camera.near, t_max=s.range, min_unknown=UNKNOWN_VOXELS * s.voxel,
+                             stride=s.stride)
         return PRIOR_GAIN * px
 
-    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
+    def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         offset = torch.as_tensor(self.frontier_gain(poses), dtype=torch.float64)
-        return self.mutual_information(mapper, poses, offset).numpy()
+        return self.mutual_information(view, poses, offset).numpy()
+
+    def get_state(self) -> dict:
+        if self.occupancy is None:
+            return {}
+        return {"bounds": self.occupancy.bounds, "occupancy": self.occupancy.get_state()}
+
+    def set_state(self, state: dict) -> None:
+        if state:
+            self.occupancy = OccupancyMap(np.asarray(state["bounds"]), self.cfg.explore.voxel)
+            self.occupancy.set_state(state["occupancy"])

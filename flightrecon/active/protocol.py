@@ -1,17 +1,18 @@
-"""What the closed loop and a view selector say to each other: the observation a selector is shown
-after every captured frame, and the small `Selector` protocol.
+"""What the closed loop and a view selector say to each other: the `Selector` base class, the
+observation it is shown after every captured frame, and the narrow view of the map it works on.
 
-A selector sees the map after every captured frame (`observe`), scores the feasible candidate
-views of a step (`score`, higher is better) and answers the share of the map it deems reliable
-(`reliable_share`, GauSS-MI's stopping statistic). All selectors share the mapper, planner and
-candidate library of the loop, so comparing them isolates the selection criterion. Plug-ins
-import this module only; `active.registry` finds them by name.
+A selector is one class in one file (docs/selectors.md): its `name`, optionally its own config
+section (`section` and a frozen `settings` dataclass whose fields use `config.option`), the per-splat
+map columns it keeps (`columns`), and the calls below. Only `score` is required. All selectors share
+the mapper, planner and candidate library of the loop, so comparing them isolates the selection
+criterion. Plug-ins import this module only; `active.registry` finds them by name (built-in, or
+registered by another package under the `flightrecon.selectors` entry point).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -34,12 +35,106 @@ class Observation:
     view: RenderedView | None = None  # the map rendered at T_wc after mapping (the loop sets it)
 
 
-def capture_view(mapper: OnlineMapper, obs: Observation) -> RenderedView:
+class MapView:
+    """What a selector sees of the map: the splats' parameters, the columns it declared, and one render
+    call. The mapper's optimizer, frames and voxel hash stay out of reach, so a selector cannot change
+    what the map learns, only what it keeps beside it."""
+
+    def __init__(self, mapper: OnlineMapper, columns: dict[str, tuple[int, ...]]) -> None:
+        self._mapper = mapper
+        self._columns = dict(columns)
+        for name, shape in self._columns.items():
+            if name not in mapper.map:
+                mapper.map.add_column(name, tuple(shape), torch.float32)
+
+    def __len__(self) -> int:
+        return len(self._mapper.map)
+
+    @property
+    def device(self) -> torch.device:
+        return self._mapper.device
+
+    @property
+    def near(self) -> float:
+        return self._mapper.near
+
+    @property
+    def far(self) -> float:
+        return self._mapper.far
+
+    def splats(self) -> dict[str, torch.Tensor]:
+        """means [N,3], quats [N,4] (unit), log_scales [N,2], opacity_logits [N], colors [N,3]."""
+        return self._mapper.splats()
+
+    def column(self, name: str) -> torch.Tensor:
+        """The selector's own per-splat column (float32 [N, *shape], zeros for new splats); the map keeps it
+        aligned with the splats through growth and pruning, saves it with `output.ply_extras` and in
+        checkpoints."""
+        if name not in self._columns:
+            raise KeyError(f"map column {name!r} was not declared by the selector (declared: "
+                           f"{', '.join(self._columns) or 'none'}); add it to the selector's `columns`")
+        return self._mapper.map[name]
+
+    def render(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int) -> RenderedView:
+        """The map at camera T_wc (color, alpha, depth, normal), with per-splat pixel sums."""
+        return self._mapper.render_capture(T_wc, K, width, height)
+
+
+class Selector:
+    """Base of every view selector; override `score` and whichever optional hooks the method needs."""
+
+    name: ClassVar[str] = ""
+    role: ClassVar[str] = "method"  # method | baseline | floor | ablation: what `sweep` flies by default
+    # (methods, baselines and the floor) and which the report pairs the others against (methods)
+    section: ClassVar[str | None] = None  # the config section of its own settings, `[section]`
+    settings: ClassVar[type | None] = None  # frozen dataclass of that section (fields: config.option)
+    columns: ClassVar[dict[str, tuple[int, ...]]] = {}  # per-splat map columns it keeps: name -> shape
+
+    def __init__(self, cfg: ScenarioConfig) -> None:
+        self.cfg = cfg
+
+    def observe(self, view: MapView, obs: Observation) -> dict:
+        """Update the selector's state after `obs` was mapped; returns diagnostics for the logs."""
+        return {}
+
+    def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
+        """Scores [C] of candidate camera poses T_wc [C,4,4] reached by planned paths of `lengths` [C] m
+        (None: unknown); the loop flies to the argmax."""
+        raise NotImplementedError(f"selector {self.name!r} does not implement score()")
+
+    def stopping_statistic(self, view: MapView) -> float | None:
+        """Share of the map the selector deems reliable, for the stopping rule (`budget.stop_on_reliability`,
+        GauSS-MI's); None for a selector that keeps no such statistic."""
+        return None
+
+    def diagnose(self, view: MapView, T_wc: np.ndarray) -> dict:
+        """Extra columns of diagnosis.csv (`output.diagnose`) about the chosen camera T_wc [4,4]."""
+        return {}
+
+    def attach_scene(self, bounds: np.ndarray) -> None:
+        """The scene's bounding box (2,3), once, before the first frame (for a selector that maps the scene)."""
+
+    def propose(self, view: MapView, position: np.ndarray, yaw: float,
+                frame: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The selector's own candidate viewpoints for this step, (positions [M,3], yaws [M]), checked by the
+        planner instead of the shared library; None: the shared library."""
+        return None
+
+    def get_state(self) -> dict[str, Any]:
+        """What the selector carries between frames outside its map columns (arrays and JSON values), for
+        checkpoints; `set_state` of it continues exactly."""
+        return {}
+
+    def set_state(self, state: dict[str, Any]) -> None:
+        """Restore what `get_state` returned."""
+
+
+def capture_view(view: MapView, obs: Observation) -> RenderedView:
     """The map rendered at the observation's pose after mapping: the loop's shared render, or a new one
     when the observation came without it (a selector driven outside the loop)."""
     if obs.view is None:
         H, W = np.asarray(obs.depth).shape
-        obs.view = mapper.render_capture(obs.T_wc, obs.K, W, H)
+        obs.view = view.render(obs.T_wc, obs.K, W, H)
     return obs.view
 
 
@@ -64,30 +159,3 @@ def observation_tensors(obs: Observation, device: torch.device) -> tuple[torch.T
     return (float_tensor(obs.rgb, device), float_tensor(obs.depth, device)[..., None],
             float_tensor(obs.T_wc, device), float_tensor(obs.K, device))
 
-
-def ensure_column(mapper: OnlineMapper, name: str, shape: tuple[int, ...]) -> torch.Tensor:
-    """The selector's own per-splat column `name` of the map, added (zeros) on first use; the map keeps
-    it aligned with the splats through growth and pruning."""
-    if name not in mapper.map:
-        mapper.map.add_column(name, shape, torch.float32)
-    return mapper.map[name]
-
-
-class Selector(Protocol):
-    name: str
-
-    def observe(self, mapper: OnlineMapper, obs: Observation) -> dict:
-        """Update the selector's state after `obs` was mapped; returns diagnostics for the logs."""
-
-    def score(self, mapper: OnlineMapper, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
-        """Scores [C] of candidate camera poses T_wc [C,4,4] reached by planned paths of `lengths` [C] m
-        (None: unknown); the loop flies to the argmax."""
-
-    def reliable_share(self, mapper: OnlineMapper) -> float:
-        """Share of the map's splats the selector deems reliable (the loop's stopping statistic);
-        0 for a selector that keeps no reliability, so the stopping rule never stops it."""
-
-    # Optional, called by the loop when a selector has them:
-    #   attach_scene(bounds (2,3)): the scene's bounding box, once, before the first frame.
-    #   propose(mapper, position (3,), yaw, frame) -> (positions [M,3], yaws [M]): the selector's own
-    #       candidate viewpoints for this step, checked by the planner instead of the shared library.

@@ -26,9 +26,11 @@ of the observed depth (`depth_edges`), where a pixel mixes two surfaces.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import torch
 
-from flightrecon.config import ReliabilityConfig
+from flightrecon.config import option
 from flightrecon.geometry import pixel_rays
 from flightrecon.mapping.image_metrics import ssim_map
 from flightrecon.mapping.losses import normals_from_depth
@@ -38,6 +40,29 @@ from flightrecon.render.projection import quat_to_rotmat
 
 FRONT, BACK, SKIP = 0, 1, -1
 EDGE_JUMP = 0.1  # relative depth step to a 4-neighbour that marks a pixel as an occlusion edge
+
+
+@dataclass(frozen=True)
+class ReliabilityConfig:
+    """`[reliability]`: 2D GauSS-MI's settings (the paper's table of parameters), the section of the
+    gaussmi2d selectors."""
+
+    w_min: float = option(0.1, 0.0, 1.0)
+    lambda_L: float = option(1.0, 1e-6, 1e6)
+    lambda_T: float = option(1.2, 0.0, 1e6)
+    lambda_rD: float = option(3.0, 0.0, 1e6)
+    lambda_rNr: float = option(0.15, 0.0, 1e6)
+    loss_floor: float = option(1e-4, 1e-12, 1.0, doc="L_j is clamped to at least this before the log")
+    logodds_clamp: float = option(10.0, 0.1, 1e3, doc="log-odds are kept in [-c, c]")
+    edge_mask: bool = option(False, doc="leave the depth and normal terms of the loss image out at occlusion edges "
+                             "of the observed depth, where a pixel mixes two surfaces and the observed normal is "
+                             "undefined (the color term stays); off: the paper's loss image at every pixel")
+    measurement_prior: str = option("one", choices=("one", "depth_noise"))
+    gain_floor: float = option(1e-3, 0.0, 1e6, doc="scoring: a first pass stops each tile after its last splat whose "
+                               "information gain reaches this, bounding each candidate's MI from above and below; "
+                               "candidates that can still win are scored again exactly, so the chosen view is the "
+                               "exact argmax. 0: every candidate exactly")
+    moved_from = {"selector.measurement_prior": "measurement_prior", "selector.gain_floor": "gain_floor"}
 
 
 def splat_normals(quats: torch.Tensor) -> torch.Tensor:

@@ -23,7 +23,7 @@ import torch
 from scipy.stats import spearmanr
 
 from flightrecon.active import gaussmi2d
-from flightrecon.active.protocol import scoring_intrinsics
+from flightrecon.active.protocol import MapView, scoring_intrinsics
 from flightrecon.active.selectors import GaussMI2D
 from flightrecon.bench.common import report, time_call
 from flightrecon.config import load_config
@@ -53,7 +53,7 @@ def _selector_time(mission: Mission, repeat: int) -> dict:
     """The configured selector's own score() of the final library, per candidate: its scoring
     resolution and all it recomputes per selection (e.g. FisherRF's H_train) included."""
     poses = library_poses(mission)
-    t = time_call(lambda: mission.selector.score(mission.mapper, poses), repeat=repeat, warmup=0)["median_s"]
+    t = time_call(lambda: mission.selector.score(mission.view, poses), repeat=repeat, warmup=0)["median_s"]
     return {"method": mission.cfg.selector.method, "candidates": len(poses), "ms_per_cand": 1e3 * t / len(poses)}
 
 
@@ -63,7 +63,7 @@ def _score_times(mission: Mission, width: int, height: int, repeat: int) -> dict
     c = mission.cfg
     Ks = scoring_intrinsics(c, width, height)
     splats = mission.mapper.splats()
-    rel = GaussMI2D(c).reliability(mission.mapper)
+    rel = MapView(mission.mapper, GaussMI2D.columns).column(GaussMI2D.COLUMN)
     near, far = mission.mapper.near, mission.mapper.far
 
     last: list = []  # the scores of the last timed call, for the ranking comparison

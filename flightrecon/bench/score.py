@@ -3,7 +3,7 @@ baselines' scoring, all on the same map and the same candidate library in the sa
 
 Restores the run's last checkpoint (map, reliability, planner, drone state), takes the whole
 candidate library around the drone's final pose (every candidate, feasible or not: the worst
-case of a step) and times, per scoring resolution: 2D GauSS-MI scored exactly (selector.gain_floor
+case of a step) and times, per scoring resolution: 2D GauSS-MI scored exactly (reliability.gain_floor
 0) and with the configured floor (the cut first pass plus the exact re-scoring of the candidates
 that can still win), whether both pick the same view, how many candidates were re-scored, and the
 first pass's bound relative to the best MI. Then the baselines' own score() at their own
@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from flightrecon.active import gaussmi2d
-from flightrecon.active.protocol import Observation, scoring_intrinsics
+from flightrecon.active.protocol import MapView, Observation, scoring_intrinsics
 from flightrecon.active.registry import make_selector
 from flightrecon.active.selectors import GaussMI2D
 from flightrecon.bench.active import library_poses
@@ -57,10 +57,10 @@ def _ours(mission: Mission, poses: np.ndarray, width: int, height: int, repeat: 
     cfg = mission.cfg
     mapper = mission.mapper
     splats = mapper.splats()
-    rel = GaussMI2D(cfg).reliability(mapper)
+    rel = MapView(mapper, GaussMI2D.columns).column(GaussMI2D.COLUMN)
     T = torch.as_tensor(poses, dtype=torch.float32)
     K = scoring_intrinsics(cfg, width, height)
-    floor = cfg.selector.gain_floor
+    floor = cfg.reliability.gain_floor
     common = dict(w_min=cfg.reliability.w_min, near=mapper.near, far=mapper.far, backend=cfg.mapper.backend)
     result: dict = {}
 
@@ -90,15 +90,16 @@ def _baseline(mission: Mission, method: str, poses: np.ndarray, repeat: int) -> 
     cfg = dataclasses.replace(mission.cfg, selector=dataclasses.replace(mission.cfg.selector, method=method))
     selector = make_selector(cfg)
     mapper = mission.mapper
+    view = MapView(mapper, selector.columns)
     if method == "fisherrf":  # its training views: the frames the map was trained on
         for i, f in enumerate(mapper.frames):
-            selector.observe(mapper, Observation(i, None, None, None, np.linalg.inv(f.viewmat.double().numpy())))
+            selector.observe(view, Observation(i, None, None, None, np.linalg.inv(f.viewmat.double().numpy())))
     if method.startswith("activegs"):  # its voxel map over the scene, from the frames the map was trained on
         selector.attach_scene(mission.rig.scene.bounds)
         for f in mapper.frames:
             selector.observe_space(expand_frame(f, torch.device("cpu"))[1][..., 0].numpy(), f.K.double().numpy(),
                                    f.T_wc)
-    t = time_call(lambda: selector.score(mapper, poses), repeat=repeat)["median_s"]
+    t = time_call(lambda: selector.score(view, poses), repeat=repeat)["median_s"]
     width = getattr(selector, "width", cfg.selector.scoring_width)
     height = getattr(selector, "height", cfg.selector.scoring_height)
     row = {"method": method, "resolution": f"{width}x{height}", "candidates": len(poses), "ms": 1e3 * t,

@@ -35,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--diagnose", action="store_true",
                    help="write diagnosis.csv: the chosen view's MI by kind of splat, the move, the surface seen so "
                         "far and each frame's overlap with earlier ones (output.diagnose=true)")
+    p.add_argument("--export-dataset", action="store_true",
+                   help="also keep the captured RGB-D frames and poses as a nerfstudio-style dataset in "
+                        "<run>/dataset (transforms.json; output.dataset=true)")
     p.add_argument("--export-3dgs", action="store_true",
                    help="also write map_3dgs.ply with scale_2 for 3DGS viewers (as `map --export-3dgs`)")
     p.set_defaults(func=run)
@@ -49,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_active(None, Path(args.resume), not args.quiet, args)
     if args.scenario is None:
         raise FlightReconError("fly needs a SCENARIO (or --resume RUN_DIR)")
-    flags = (["output.record=false"] if args.no_record else []) + (["output.diagnose=true"] if args.diagnose else [])
+    flags = ((["output.record=false"] if args.no_record else []) + (["output.diagnose=true"] if args.diagnose else [])
+             + (["output.dataset=true"] if args.export_dataset else []))
     cfg = load_config(args.scenario, args.overrides + flags)
     progress = (lambda msg: None) if args.quiet else (lambda msg: print(msg, flush=True))
     if args.survey:

@@ -19,8 +19,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sweep", help="run scenes x methods x seeds, evaluate, write the paper's tables and figures")
     p.add_argument("--scenario", default="default", help="scenario TOML path or name in scenarios/ (default: default)")
     p.add_argument("--scenes", nargs="+", default=list(SCENE_NAMES), help="scene names (default: the eight)")
-    p.add_argument("--methods", nargs="+", default=["gaussmi2d", "activegs", "gaussmi", "fisherrf"],
-                   help="selector names (selector.method values)")
+    p.add_argument("--methods", nargs="+", default=None,
+                   help="selector names (selector.method values; default: every registered method, baseline "
+                        "and floor, without the ablations: `flightrecon selectors` lists them)")
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per scene and method (default 3)")
     p.add_argument("--jobs", type=int, default=1, help="runs in parallel (default 1)")
     p.add_argument("--max-runs", type=int, default=None,
@@ -48,6 +49,10 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seeds < 1 or args.jobs < 1 or (args.max_runs is not None and args.max_runs < 1):
         raise FlightReconError("sweep: --seeds, --jobs and --max-runs must be at least 1")
+    if args.methods is None:
+        from flightrecon.active.registry import methods_with_role
+
+        args.methods = methods_with_role("method", "baseline", "floor")
     specs = plan_runs(args.scenario, args.scenes, args.methods, args.seeds, args.overrides, args.run_root)
     execute(specs, args.jobs, args.executor, args.ray_address, log=lambda s: print(s, flush=True),
             max_runs=args.max_runs, retry_failed=args.retry_failed, allow_code_change=args.allow_code_change)

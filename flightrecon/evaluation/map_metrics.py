@@ -25,7 +25,7 @@ from flightrecon.evaluation.views import EvaluationSet, mean_metrics
 from flightrecon.geometry import camera_pose, pixel_rays
 from flightrecon.mapping.losses import normals_from_depth
 from flightrecon.mapping.store import GaussianMap
-from flightrecon.render import render
+from flightrecon.render import RenderOutput, render
 from flightrecon.scene.surface_distance import SurfaceDistance
 
 SURFACE_ALPHA = 0.5  # rendered opacity above which a pixel's depth enters the TSDF
@@ -49,6 +49,14 @@ class MapRenderer:
         return render(m["means"], torch.nn.functional.normalize(m["quats"], dim=-1), m["log_scales"],
                       m["opacity_logits"], m["colors"], viewmat, Ks, width, height, near=self.near,
                       far=self.far, outputs=outputs, backend=self.backend)
+
+
+def render_map(gmap: GaussianMap, T_wc: np.ndarray, K: np.ndarray, width: int, height: int, *,
+               near: float = 0.05, far: float = 10.0,
+               outputs: tuple[str, ...] = ("features", "alpha", "depth", "normal")) -> RenderOutput:
+    """A map (e.g. `load_map` of a run's map.ply) rendered at camera-to-world T_wc [4,4] (OpenCV axes)
+    with intrinsics K [3,3]: images [1,H,W,k] (features are the colors)."""
+    return MapRenderer(gmap, near, far).render_view(np.asarray(T_wc, float), K, width, height, outputs)
 
 
 @dataclass

@@ -2,12 +2,12 @@
 
 Tables (each as .md, .csv and .tex): `overall` (per method, mean over scenes and seeds with its
 95% t-interval, as the paper's Table "Overall Evaluation Results", image metrics on all pixels and
-on covered ones), `paired` (every method's paired difference to ours, over all scenes and per scene,
-with its 95% interval: the same scenes and seeds are paired, and over all scenes the unit is the
-scene with its seeds averaged; * where it excludes zero),
+on covered ones), `paired_<method>` for every method under study (selectors whose role is
+"method": every other method's paired difference to it, over all scenes and per scene, with its 95%
+interval: the same scenes and seeds are paired, and over all scenes the unit is the scene with its
+seeds averaged; * where it excludes zero),
 `per_scene` (PSNR, D-L1, F-score per method and scene, mean and interval over seeds),
-`efficiency` (per-candidate evaluation time, selector update time, model size), `paired_gaussmi2d_explore`
-(the same pairing against our exploring variant), `ranking` (methods ranked at each in-flight
+`efficiency` (per-candidate evaluation time, selector update time, model size), `ranking` (methods ranked at each in-flight
 evaluation over the runs every method finished), and `summary.md` (what is compared, the run counts,
 and whether the ranking at 2/3 of the budget equals the final one).
 Per-candidate time = total scoring time / total feasible candidates scored, from frames.csv
@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from flightrecon import provenance, run_folder
+from flightrecon.active.registry import proposes_own_candidates, role_of
 from flightrecon.evaluation.intervals import mean_interval, paired_difference
 from flightrecon.fileio import atomic_path, write_text
 
@@ -43,15 +44,12 @@ OVERALL = [("psnr", "PSNR", "up", 2), ("psnr_covered", "PSNR cov.", "up", 2), ("
            ("accuracy_cm", "Acc [cm]", "down", 2), ("completion_cm", "Comp [cm]", "down", 2),
            ("chamfer_cm", "CD [cm]", "down", 2), ("fscore", "F-score", "up", 3)]
 PER_SCENE = [("psnr", "PSNR"), ("depth_l1_cm", "D-L1"), ("fscore", "F-score")]
-# the paper's method (`paired`), then our variant (`paired_<name>`): each paired with every other method
-REFERENCES = ("gaussmi2d", "gaussmi2d_explore")
 SNAPSHOT_KEYS = ("accuracy_cm", "completion_cm")
 RANKED = [("psnr", "PSNR", "up"), ("depth_l1_cm", "D-L1", "down"), ("fscore", "F-score", "up")]
 SHARED_PIPELINE = ("Every method here flies with the same 2DGS mapper, planner, candidate library, "
                    "simulator and evaluation: only the view-selection criterion differs. The paper ran "
                    "GauSS-MI and FisherRF on a 3DGS pipeline and ActiveGS with its own planner, so its "
                    "comparison also mixes in those differences; this one isolates the criterion.")
-OWN_CANDIDATES = ("activegs_native",)  # methods that propose their own candidates instead of the library
 PAIRED = [("psnr", "PSNR", 2), ("psnr_covered", "PSNR cov.", 2), ("depth_l1_cm", "D-L1 [cm]", 2),
           ("completion_cm", "Comp [cm]", 2), ("fscore", "F-score", 3)]
 
@@ -162,7 +160,8 @@ def _fmt(v: float, digits: int) -> str:
 
 
 def _methods(recs: list[dict]) -> list[str]:
-    return sorted({r["method"] for r in recs}, key=lambda m: (m != REFERENCES[0], m))
+    """The methods of the runs: those under study (role "method") first, then the others, by name."""
+    return sorted({r["method"] for r in recs}, key=lambda m: (role_of(m) != "method", m))
 
 
 def code_states(recs: list[dict]) -> dict[str, int]:
@@ -243,12 +242,12 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
                          f"Overall evaluation results (mean over scenes ± 95% t-interval with the scene as the "
                          f"unit: each scene's seeds are averaged first; {note}; 'cov.': on pixels the map "
                          "covers, alpha >= 0.5)")
-    for ours in [m for m in methods if m in REFERENCES]:
+    for ours in [m for m in methods if role_of(m) == "method"]:
         rows = []
         for m in [m for m in methods if m != ours]:
             for scene in [None] + scenes:
                 rows.append([m, scene or "all"] + [_paired_cell(recs, m, ours, k, dg, scene) for k, _, dg in PAIRED])
-        paths += _write_table(out, "paired" if ours == REFERENCES[0] else f"paired_{ours}",
+        paths += _write_table(out, f"paired_{ours}",
                               ["Method", "Scene"] + [h for _, h, _ in PAIRED], rows,
                               f"Paired difference to {ours} (method - {ours} on the same scenes and seeds; "
                               "'all': mean over scenes of the seed-averaged difference, 95% interval over "
@@ -283,7 +282,7 @@ def _write_summary(out: Path, recs: list[dict], check: RankingCheck | None, fail
     """What the tables compare, how many runs they hold (and which flights failed, why), and whether
     the budget settles the ranking."""
     lines = ["# Sweep summary", "", SHARED_PIPELINE, ""]
-    own = sorted({r["method"] for r in recs if r["method"] in OWN_CANDIDATES})
+    own = sorted({r["method"] for r in recs if proposes_own_candidates(r["method"])})
     if own:
         lines += [f"Except for the candidates: {', '.join(own)} choose among their own (docs/baselines.md), "
                   "which the same planner checks.", ""]
