@@ -9,12 +9,14 @@ import pickle
 import numpy as np
 import pytest
 import torch
+from test_flight import WALL_X, box_world
 from test_occupancy import _raycast_depth, _room
 
 from flightrecon import run_folder
 from flightrecon.checkpoint import (FORMAT, FORMAT_VERSION, HEADER, load_checkpoint, refuse_legacy,
                                     save_checkpoint)
 from flightrecon.config import MapperConfig, load_config
+from flightrecon.control.reference_paths import MinJerkMove
 from flightrecon.control.trajectory import FlatState
 from flightrecon.errors import CheckpointError
 from flightrecon.evaluation.coverage import SurfaceCoverage
@@ -23,6 +25,7 @@ from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.mapping.store import GaussianMap
 from flightrecon.planning.feasibility import Planner
 from flightrecon.planning.paths import seed_ompl
+from flightrecon.sim.flight import Flight
 
 W, H = 64, 48
 START = np.array([0.0, 0.0, 1.2])
@@ -222,3 +225,31 @@ def test_restored_coverage_continues_identically(frames, tmp_path):
     _, depth, T = views[1]
     assert restored.add_frame(depth, K, T) == coverage.add_frame(depth, K, T)
     np.testing.assert_array_equal(restored.observed, coverage.observed)
+
+
+def _flight(cfg) -> Flight:
+    model, data = box_world(cfg)
+    return Flight(model, data, cfg)
+
+
+def test_a_restored_flight_continues_bit_identically(tmp_path):
+    cfg = load_config(None, ["sim.pose_noise_pos_m=0.01", "sim.pose_noise_rot_deg=0.5"])
+    flight = _flight(cfg)
+    flight.start(np.array([WALL_X - 0.5, 0.0, 1.0]))
+    move = MinJerkMove.within_limits([WALL_X - 0.5, 0.0, 1.0], [WALL_X + 0.5, 0.0, 1.0], 0.0, 0.3, 1.0, 2.0,
+                                     8.0, 1.0, 1.0)
+    times = np.arange(int(move.duration / flight.control_dt) + 100) * flight.control_dt
+    k = 0
+    while not flight.contacts.active:  # checkpoint in contact with the wall and under way
+        flight.step(move.sample(times[k]))
+        k += 1
+    flight.estimated_camera_pose()
+    restored = _flight(cfg)
+    restored.set_state(_round_trip(flight.get_state(), tmp_path))
+    for f in (flight, restored):
+        for t in times[k:k + 200]:
+            f.step(move.sample(t))
+    np.testing.assert_array_equal(restored.log.array, flight.log.array)
+    assert restored.log.events == flight.log.events and len(flight.log.events) > 0  # no contact logged twice
+    assert restored.last_reference.yaw == flight.last_reference.yaw
+    np.testing.assert_array_equal(restored.estimated_camera_pose(), flight.estimated_camera_pose())
