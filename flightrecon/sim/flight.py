@@ -240,8 +240,7 @@ class Flight:
 
     def set_state(self, state: dict) -> None:
         """Restore a `get_state()` snapshot into this flight's (identically built) world."""
-        mujoco.mj_setState(self.model, self.data, np.asarray(state["sim"], np.float64),
-                           mujoco.mjtState.mjSTATE_INTEGRATION)
+        mujoco.mj_setState(self.model, self.data, state["sim"], mujoco.mjtState.mjSTATE_INTEGRATION)
         mujoco.mj_forward(self.model, self.data)
         ref = state["last_reference"]
         self.last_reference = None if ref is None else FlatState(**ref)
