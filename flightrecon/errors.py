@@ -23,3 +23,8 @@ class SceneError(FlightReconError):
 
 class DataError(FlightReconError):
     """Sensor or dataset content that cannot be used (NaN or empty depth, missing frames)."""
+
+
+class CheckpointError(FlightReconError):
+    """A checkpoint this version cannot resume (another format or version, or a torn file); the
+    message names the file, what it holds and what to do."""

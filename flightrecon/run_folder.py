@@ -7,7 +7,8 @@ from pathlib import Path
 
 CONFIG = "config.toml"  # the resolved scenario of the run
 PROVENANCE = "provenance.json"  # what each flight segment ran with (flightrecon.provenance)
-CHECKPOINT = "checkpoint.pkl"  # the loop's state after the last frame (resume)
+CHECKPOINT = "checkpoint.npz"  # the loop's state after the last frame (flightrecon.checkpoint; resume)
+LEGACY_CHECKPOINT = "checkpoint.pkl"  # the pickled checkpoint of earlier versions: refused, never read
 FRAMES = "frames.csv"  # one row per frame: timings, counts, quality
 EVENTS = "events.log"
 DIAGNOSIS = "diagnosis.csv"  # output.diagnose

@@ -34,7 +34,7 @@ def test_short_flight_improves_and_writes_outputs(tmp_path):
     cfg = load_config("demo", TINY + ["budget.frames=6", "budget.initial_views=3"])
     metrics = Mission(cfg, tmp_path, progress=False).run()
     for name in ("config.toml", "frames.csv", "map.ply", "metrics.json", "trajectory.csv", "events.log",
-                 "checkpoint.pkl"):
+                 "checkpoint.npz"):
         assert (tmp_path / name).is_file(), name
     rows = _rows(tmp_path)
     assert [int(r["frame"]) for r in rows] == list(range(6))

@@ -70,7 +70,7 @@ def ceiling(run_dir: Path, budgets: list[float], out: Path) -> None:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("runs", nargs="+", type=Path, help="run folders with a checkpoint.pkl")
+    p.add_argument("runs", nargs="+", type=Path, help="run folders with a checkpoint")
     p.add_argument("--budgets", nargs="+", type=float, default=[1.0, 3.0],
                    help="cumulative extra iterations, in multiples of the flight's own (default 1 3)")
     p.add_argument("--out", type=Path, required=True, help="CSV the rows are appended to")

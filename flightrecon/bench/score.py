@@ -111,7 +111,7 @@ def _baseline(mission: Mission, method: str, poses: np.ndarray, repeat: int) -> 
 
 def run(args: argparse.Namespace) -> dict:
     if not args.run:
-        raise FlightReconError("bench score: give --run RUN_DIR (a run folder with checkpoint.pkl, e.g. from "
+        raise FlightReconError("bench score: give --run RUN_DIR (a run folder with a checkpoint, e.g. from "
                                "`flightrecon bench run` or `flightrecon fly`)")
     run_dir = Path(args.run)
     mission = Mission.resume(run_dir, progress=False)

@@ -18,6 +18,13 @@ class SurfaceCoverage:
         self.surface = np.unique(voxel_keys(surface_points, self.voxel))
         self.observed = np.zeros(0, np.int64)
 
+    def get_state(self) -> dict:
+        """The voxels the captured depth has reached; the surface is rebuilt from its points."""
+        return {"observed": self.observed.copy()}
+
+    def set_state(self, state: dict) -> None:
+        self.observed = np.asarray(state["observed"], np.int64)
+
     def add_frame(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> tuple[float, float]:
         """(share of the surface voxels observed so far, share of this frame's voxels seen before)."""
         points, _ = backproject_depth(depth, K, T_wc)

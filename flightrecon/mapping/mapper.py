@@ -16,7 +16,7 @@ would make the prune-and-reseed cycle undo the pruning.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
@@ -208,6 +208,26 @@ class OnlineMapper:
             return torch.arange(len(self.map), device=self.device)
         return candidate_rows(self.map["means"], self.map["quats"], self.map["log_scales"], viewmat, K, W, H,
                               self.near, self.far)
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    def get_state(self) -> dict:
+        """Everything carried between frames, for flightrecon.checkpoint: the map with its optimizer
+        moments and step counts (map columns), the replay frames and their training clock, the
+        seeding and replay RNG, and the pruning tombstones. The rest is rebuilt from the config."""
+        return {"map": self.map.get_state(),
+                "frames": [{f.name: getattr(frame, f.name) for f in fields(StoredFrame)} for frame in self.frames],
+                "last_trained": list(self.last_trained), "clock": self._clock,
+                "rng": self.rng.bit_generator.state, "tombstones": self.tombstones.copy(), "pruned": self.pruned}
+
+    def set_state(self, state: dict) -> None:
+        """Continue from a `get_state()` snapshot (of a mapper built with the same config)."""
+        self.map.set_state(state["map"])
+        self.frames = [StoredFrame(**frame) for frame in state["frames"]]
+        self.last_trained = [int(t) for t in state["last_trained"]]
+        self._clock = int(state["clock"])
+        self.rng.bit_generator.state = state["rng"]
+        self.tombstones = np.asarray(state["tombstones"], np.int64)
+        self.pruned = int(state["pruned"])
 
     # -- queries --------------------------------------------------------------------------------
     def _render(self, p: dict[str, torch.Tensor], viewmats: torch.Tensor, Ks: torch.Tensor, W: int, H: int,

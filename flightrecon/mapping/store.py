@@ -105,6 +105,23 @@ class GaussianMap:
             self._cols[name] = new
         self._cap = cap
 
+    def get_state(self) -> dict:
+        """The live rows of every column (selectors' and the optimizer's too), as CPU copies: a
+        snapshot for flightrecon.checkpoint that later changes to the map do not reach."""
+        return {"columns": {name: col[: self._n].detach().to("cpu", copy=True) for name, col in self._cols.items()}}
+
+    def set_state(self, state: dict) -> None:
+        """Replace every column by those of a `get_state()` snapshot, on this map's device."""
+        cols = state["columns"]
+        n = int(next(iter(cols.values())).shape[0])
+        cap = max(self._cap, n)
+        self._cols = {}
+        for name, values in cols.items():
+            col = torch.zeros((cap, *values.shape[1:]), dtype=values.dtype, device=self.device)
+            col[:n] = values
+            self._cols[name] = col
+        self._n, self._cap = n, cap
+
     def nbytes(self) -> int:
         """Bytes of the live rows of the splat parameters and bookkeeping (not optimizer state)."""
         names = list(PARAM_SHAPES) + list(META_SHAPES)

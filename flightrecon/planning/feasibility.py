@@ -296,6 +296,19 @@ class Planner:
             if start_position is not None:
                 self.mark_body_free(start_position)
 
+    def get_state(self) -> dict:
+        """The online occupancy map's evidence (None when planning on the ground truth, which the
+        config rebuilds); the clearance field is derived from it. OMPL's seed is the caller's."""
+        return {"occupancy": None if self.occupancy is None else self.occupancy.get_state()}
+
+    def set_state(self, state: dict) -> None:
+        """Continue from a `get_state()` snapshot of a planner built with the same config."""
+        if (state["occupancy"] is None) != (self.occupancy is None):
+            raise ValueError("planner state and planner disagree on planner.use_ground_truth")
+        if self.occupancy is not None:
+            self.occupancy.set_state(state["occupancy"])
+            self._field = None
+
     def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
                   body_position: np.ndarray | None = None) -> None:
         """Add a depth frame to the online map (ignored when planning on the ground truth)."""

@@ -49,6 +49,17 @@ class OccupancyMap:
     def bounds(self) -> np.ndarray:
         return np.stack([self.origin, self.origin + np.array(self.shape) * self.voxel_size])
 
+    def get_state(self) -> dict:
+        """The evidence (copies of the surface and observed grids); the grid's geometry comes from the config."""
+        return {"surface": self.surface.copy(), "observed": self.observed.copy()}
+
+    def set_state(self, state: dict) -> None:
+        """Continue from a `get_state()` snapshot of a map over the same bounds and voxel size."""
+        surface, observed = np.array(state["surface"], bool), np.array(state["observed"], bool)
+        if surface.shape != self.shape or observed.shape != self.shape:
+            raise ValueError(f"occupancy state of grid {surface.shape} does not fit this map's grid {self.shape}")
+        self.surface, self.observed = surface, observed
+
     def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> None:
         """Add one z-depth frame (meters, 0 invalid) seen from camera pose T_wc (OpenCV axes).
 

@@ -12,6 +12,7 @@ a state estimator); `camera_pose` is the exact simulated pose.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import mujoco
@@ -79,6 +80,17 @@ class FlightLog:
 
     def columns(self) -> dict[str, np.ndarray]:
         return {name: self.array[:, i] for i, name in enumerate(COLUMNS)}
+
+    def get_state(self) -> dict:
+        """The rows, contact events and notes as plain state (flightrecon.checkpoint)."""
+        return {"rows": self.array.copy(), "events": [dataclasses.asdict(e) for e in self.events],
+                "notes": list(self.notes)}
+
+    def set_state(self, state: dict) -> None:
+        self._rows = np.asarray(state["rows"], np.float64).tolist()
+        self._cache = None
+        self.events = [ContactEvent(**{**e, "position": tuple(e["position"])}) for e in state["events"]]
+        self.notes = list(state["notes"])
 
     def slice_from(self, start: int) -> "FlightLog":
         out = FlightLog()
@@ -216,20 +228,26 @@ class Flight:
 
     # ------------------------------------------------------------------ checkpoints
     def get_state(self) -> dict:
-        """Everything needed to continue this flight bit-exactly: MuJoCo's integration state (incl.
-        warm start and motor activations), the last reference, the noise RNG and the log."""
+        """Everything needed to continue this flight bit-exactly, as plain state: MuJoCo's integration
+        state (incl. warm start and motor activations), the last reference, the noise RNG, the log and
+        the contacts under way. The controller and mixer are rebuilt from the config."""
         kind = mujoco.mjtState.mjSTATE_INTEGRATION
         sim = np.empty(mujoco.mj_stateSize(self.model, kind))
         mujoco.mj_getState(self.model, self.data, sim, kind)
-        return {"sim": sim, "last_reference": self.last_reference, "rng": self._rng.bit_generator.state,
-                "log": self.log, "controller": self.controller}
+        ref = None if self.last_reference is None else dataclasses.asdict(self.last_reference)
+        return {"sim": sim, "last_reference": ref, "rng": self._rng.bit_generator.state,
+                "log": self.log.get_state(), "contacts": sorted(list(pair) for pair in self.contacts.active)}
 
     def set_state(self, state: dict) -> None:
         """Restore a `get_state()` snapshot into this flight's (identically built) world."""
         mujoco.mj_setState(self.model, self.data, state["sim"], mujoco.mjtState.mjSTATE_INTEGRATION)
         mujoco.mj_forward(self.model, self.data)
-        self.last_reference, self.log, self.controller = state["last_reference"], state["log"], state["controller"]
+        ref = state["last_reference"]
+        self.last_reference = None if ref is None else FlatState(**ref)
         self._rng.bit_generator.state = state["rng"]
+        self.log = FlightLog()
+        self.log.set_state(state["log"])
+        self.contacts.active = {(int(a), int(b)) for a, b in state["contacts"]}
 
     # ------------------------------------------------------------------ camera
     def sync(self) -> None:
