@@ -20,7 +20,6 @@ import csv
 import io
 import logging
 import math
-import pickle
 import time
 from collections import Counter
 from contextlib import contextmanager
@@ -33,13 +32,14 @@ from flightrecon import provenance, run_folder
 from flightrecon.active.diagnosis import move_kind
 from flightrecon.active.protocol import MapView, Observation, Selector
 from flightrecon.active.registry import make_selector
+from flightrecon.checkpoint import load_checkpoint, refuse_legacy, save_checkpoint
 from flightrecon.config import ScenarioConfig, load_config, to_toml
 from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import DatasetWriter, write_trajectory_csv
 from flightrecon.errors import ConfigError, DataError, FlightReconError
 from flightrecon.evaluation.coverage import SurfaceCoverage
 from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
-from flightrecon.fileio import atomic_path, write_json, write_text
+from flightrecon.fileio import write_json, write_text
 from flightrecon.geometry import camera_pose_from_body, make_pose, rot_z
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.mapping.ply import save_map
@@ -115,6 +115,7 @@ class Mission:
         ckpt = run_dir / run_folder.CHECKPOINT
         if not cfg_path.is_file():
             raise FlightReconError(f"cannot resume: {cfg_path} not found (is {run_dir} a run folder?)")
+        refuse_legacy(run_dir)
         mission = cls(load_config(cfg_path), run_dir, progress=progress)
         if ckpt.is_file():
             mission._load_checkpoint(ckpt)
@@ -152,7 +153,9 @@ class Mission:
         if not self._begun:
             self._begin()
         t0 = time.perf_counter()
-        row = self._step(last=self.state.frame == self.cfg.budget.frames - 1)
+        row = _plain(self._step(last=self.state.frame == self.cfg.budget.frames - 1))
+        if self.state.diagnosis:
+            self.state.diagnosis[-1] = _plain(self.state.diagnosis[-1])
         self.state.wall_time += time.perf_counter() - t0
         self.state.records.append(row)
         self.recorder.frame_done(row)
@@ -166,6 +169,7 @@ class Mission:
         """Before the first step of this process: the run folder, its config and provenance, the take-off
         (a new run), and the recording."""
         self._begun = True
+        refuse_legacy(self.run_dir)  # a folder an older FlightRecon flew in: never start beside its checkpoint
         self.run_dir.mkdir(parents=True, exist_ok=True)
         write_text(self.run_dir / run_folder.CONFIG, to_toml(self.cfg))
         provenance.begin_segment(self.run_dir, self.state.frame, self.allow_code_change)
@@ -426,22 +430,35 @@ class Mission:
 
     # ------------------------------------------------------------------ checkpoints
     def _save_checkpoint(self) -> None:
-        payload = {"flight": self.flight.get_state(), "mapper": self.mapper, "planner": self.planner,
-                   "selector": self.selector, "mission": self.state}
-        with atomic_path(self.run_dir / run_folder.CHECKPOINT) as tmp:
-            with open(tmp, "wb") as f:
-                pickle.dump(payload, f, protocol=pickle.HIGHEST_PROTOCOL)
+        """The state of every component after this frame, as arrays and JSON (flightrecon.checkpoint)."""
+        st = self.state
+        mission = {"frame": st.frame, "records": st.records, "events": st.events,
+                   "visited_positions": np.array([p for p, _ in st.visited], float).reshape(-1, 3),
+                   "visited_yaws": [y for _, y in st.visited], "flight_distance": st.flight_distance,
+                   "wall_time": st.wall_time, "reliable_ema": st.reliable_ema, "told_no_room": st.told_no_room,
+                   "dataset_frames": st.dataset_frames, "diagnosis": st.diagnosis,
+                   "coverage": st.coverage.get_state() if st.coverage is not None else None}
+        save_checkpoint(self.run_dir / run_folder.CHECKPOINT,
+                        {"flight": self.flight.get_state(), "mapper": self.mapper.get_state(),
+                         "planner": self.planner.get_state(), "selector": self.selector.get_state(),
+                         "mission": mission})
 
     def _load_checkpoint(self, path: Path) -> None:
-        try:
-            with open(path, "rb") as f:
-                payload = pickle.load(f)
-        except (OSError, pickle.UnpicklingError, EOFError, AttributeError) as exc:
-            raise FlightReconError(f"checkpoint {path} cannot be read ({exc}); delete it to restart the run") from None
-        self.flight.set_state(payload["flight"])
-        self.mapper, self.planner, self.selector = payload["mapper"], payload["planner"], payload["selector"]
-        self.view = MapView(self.mapper, self.selector.columns)
-        self.state = payload["mission"]
+        state = load_checkpoint(path)
+        self.flight.set_state(state["flight"])
+        self.mapper.set_state(state["mapper"])  # the selector's columns come back with the map
+        self.planner.set_state(state["planner"])
+        self.selector.set_state(state["selector"])
+        m = state["mission"]
+        coverage = self.state.coverage
+        if coverage is not None and m["coverage"] is not None:
+            coverage.set_state(m["coverage"])
+        self.state = MissionState(
+            frame=m["frame"], records=m["records"], events=m["events"],
+            visited=[(np.asarray(p, float), float(y)) for p, y in zip(m["visited_positions"], m["visited_yaws"])],
+            flight_distance=m["flight_distance"], wall_time=m["wall_time"], reliable_ema=m["reliable_ema"],
+            told_no_room=m["told_no_room"], dataset_frames=m["dataset_frames"], coverage=coverage,
+            diagnosis=m["diagnosis"])
 
 
 class _progress:
@@ -465,6 +482,11 @@ class _progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+def _plain(row: dict) -> dict:
+    """A row with numpy scalars as Python ones: what checkpoints store, and how the CSV prints them."""
+    return {k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()}
 
 
 def _csv_text(rows: list[dict], columns) -> str:
