@@ -469,13 +469,17 @@ class _progress:
         if enabled:
             from tqdm import tqdm
 
+            from flightrecon.metric_defs import METRICS
+
             self.bar = tqdm(total=total, initial=done, unit="frame", dynamic_ncols=True)
+            self.psnr = METRICS["psnr"]
 
     def update(self, row: dict) -> None:
         if self.bar is None:
             return
-        post = {"splats": row.get("n_splats"), "feasible": row.get("n_feasible"),
-                "psnr": _fmt(row.get("frame_psnr")), "eval": _fmt(row.get("eval_psnr"))}
+        post = {"splats": row.get("n_splats"), "feasible": row.get("n_feasible"),  # PSNRs blank where none
+                "psnr": self.psnr.format(row.get("frame_psnr"), missing=""),
+                "eval": self.psnr.format(row.get("eval_psnr"), missing="")}
         self.bar.set_postfix({k: v for k, v in post.items() if v not in (None, "")}, refresh=False)
         self.bar.update(1)
 
@@ -497,8 +501,3 @@ def _csv_text(rows: list[dict], columns) -> str:
     for r in rows:
         writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
     return buf.getvalue()
-
-
-def _fmt(v) -> str:
-    return "" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.2f}"
-

@@ -57,6 +57,7 @@ import torch
 
 from flightrecon import run_folder
 from flightrecon.config import ScenarioConfig
+from flightrecon.metric_defs import METRICS
 from flightrecon.scene.types import Scene
 
 APP_ID = "flightrecon"
@@ -383,9 +384,10 @@ def default_blueprint(workspace: np.ndarray | None = None) -> rrb.Blueprint:
         rrb.Spatial2DView(origin="rendered/normal", name="rendered normal"),
         grid_columns=3)
     plots = rrb.Tabs(
-        rrb.TimeSeriesView(origin="plots", contents=["+ $origin/frame_psnr", "+ $origin/eval_psnr"], name="PSNR (dB)"),
+        rrb.TimeSeriesView(origin="plots", contents=["+ $origin/frame_psnr", "+ $origin/eval_psnr"],
+                           name=METRICS["psnr"].heading),
         rrb.TimeSeriesView(origin="plots", contents=["+ $origin/frame_depth_l1_cm", "+ $origin/eval_depth_l1_cm"],
-                           name="depth L1 (cm)"),
+                           name=METRICS["depth_l1_cm"].heading),
         rrb.TimeSeriesView(origin="plots", contents=["+ $origin/n_splats"], name="splats"),
         rrb.TimeSeriesView(origin="plots", contents=["+ $origin/chosen_score"], name="chosen MI"),
         rrb.TimeSeriesView(origin="plots", contents=["+ $origin/t_score", "+ $origin/n_feasible"],

@@ -48,7 +48,7 @@ def test_map_command_writes_map_metrics_and_renders(dataset, tmp_path, capsys):
     read = lambda p: cv2.cvtColor(cv2.imread(str(p)), cv2.COLOR_BGR2RGB) / 255.0  # noqa: E731
     ren, gt = read(out / "renders/frame_00004_color.png"), read(out / "renders/frame_00004_color_gt.png")
     assert abs(peak_signal_noise_ratio(gt, ren, data_range=1.0) - m["test"]["mean"]["psnr"]) < 0.5
-    assert 0 < m["test"]["mean"]["depth_l1"] < 1.0
+    assert 0 < m["test"]["mean"]["depth_l1_cm"] < 100.0 and m["test"]["mean"]["views"] == 1
     assert "test (1 views)" in capsys.readouterr().out
 
 

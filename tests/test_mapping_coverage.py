@@ -45,7 +45,7 @@ def test_masked_metrics_use_only_the_masked_pixels():
     right = np.zeros((H, W), bool)
     right[:, W // 2:] = True
     m = masked_metrics(color, rendered, rgb, depth, ~right)
-    assert abs(m["psnr"] - 20.0) < 1e-9 and abs(m["depth_l1"] - 0.05) < 1e-12
+    assert abs(m["psnr"] - 20.0) < 1e-9 and abs(m["depth_l1_cm"] - 5.0) < 1e-10
     exact = masked_metrics(color, rendered, rgb, depth, right)
-    assert exact["psnr"] > 100 and exact["depth_l1"] == 0.0
+    assert exact["psnr"] > 100 and exact["depth_l1_cm"] == 0.0
     assert np.isnan(masked_metrics(color, rendered, rgb, depth, np.zeros((H, W), bool))["psnr"])

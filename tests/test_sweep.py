@@ -159,7 +159,7 @@ def test_overall_intervals_take_the_scene_as_the_unit_when_seeds_are_correlated(
     row = next(r for r in _rows(tmp_path / "overall.csv") if r["Method"] == "gaussmi2d")
     means = np.array([v + 0.025 for v in scene_level.values()])
     half = stats.t.ppf(0.975, 3) * means.std(ddof=1) / 2
-    assert row["PSNR"] == f"{means.mean():.2f} ± {half:.2f}"
+    assert row["PSNR [dB]"] == f"{means.mean():.2f} ± {half:.2f}"
     runs = np.array([r["psnr"] for r in recs])
     naive = stats.t.ppf(0.975, 7) * runs.std(ddof=1) / np.sqrt(8)
     assert half > 1.4 * naive  # the difference the unit makes here

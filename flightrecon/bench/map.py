@@ -20,9 +20,9 @@ import torch
 
 from flightrecon.config import load_config
 from flightrecon.dataset import load_dataset
-from flightrecon.mapping.offline import (evaluate_view, masked_metrics, mean_metrics, train_on_dataset,
-                                         training_coverage)
+from flightrecon.mapping.offline import evaluate_view, masked_metrics, train_on_dataset, training_coverage
 from flightrecon.mapping.ply import save_map
+from flightrecon.metric_defs import mean_metrics
 
 from flightrecon.bench.common import report
 
@@ -75,8 +75,6 @@ def run(args: argparse.Namespace) -> dict:
                         m.update({f"{k}_covered": v for k, v in
                                   masked_metrics(color, depth, f.rgb, f.depth, covered).items()})
                     views.append(m)
-                for k, v in mean_metrics(views).items():
-                    row[f"{split}_{k}"] = v * 100.0 if k.startswith("depth_l1") else v
-            row = {k.replace("depth_l1", "depth_l1_cm"): v for k, v in row.items()}
+                row.update({f"{split}_{k}": v for k, v in mean_metrics(views).items()})
         rows.append(row)
     return report("map", rows, args.out, extra={"note": "wall times on a shared machine; see machine.cores"})

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from flightrecon.config import ScenarioConfig, load_config
 from flightrecon.errors import FlightReconError
+from flightrecon.metric_defs import summary_line
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -73,10 +74,9 @@ def _run_active(cfg: ScenarioConfig | None, out: Path, progress: bool, args: arg
         from flightrecon.mapping.ply import save_map
 
         save_map(mission.mapper.map, out / "map_3dgs.ply", for_3dgs=True)
-    e = m["eval"]
-    print(f"{m['frames']} frames, {m['splats']} splats ({m['map_mb']:.1f} MB); evaluation views: PSNR "
-          f"{e['psnr']:.2f} dB, SSIM {e['ssim']:.3f}, depth L1 {e['depth_l1_cm']:.2f} cm; flew "
-          f"{m['flight_distance_m']:.1f} m, {m['recoveries']} recoveries, {m['contacts']} contacts -> {out}")
+    print(f"{m['frames']} frames, {m['splats']} splats ({m['map_mb']:.1f} MB); evaluation views: "
+          f"{summary_line(m['eval'])}; flew {m['flight_distance_m']:.1f} m, {m['recoveries']} recoveries, "
+          f"{m['contacts']} contacts -> {out}")
     return 0
 
 

@@ -2,8 +2,8 @@
 
 Trains online (frame by frame, as in flight) on the dataset's frames, holding out every k-th frame,
 then renders every view and writes: map.ply, config.toml (the resolved config), metrics.json
-(PSNR, SSIM, depth L1 per view and mean, for held-out and training views), and renders/ with the
-held-out views' color and depth (16-bit mm PNG) beside the observed ones.
+(PSNR dB, SSIM, depth L1 cm per view and their means, for held-out and training views), and
+renders/ with the held-out views' color and depth (16-bit mm PNG) beside the observed ones.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from flightrecon import fileio, run_folder
 from flightrecon.config import load_config, to_toml
 from flightrecon.dataset import encode_color_png, encode_depth_png, load_dataset
 from flightrecon.errors import ConfigError
+from flightrecon.metric_defs import mean_metrics, summary_line
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     # torch and the rasterizer load only when mapping runs, not whenever the CLI starts
-    from flightrecon.mapping.offline import evaluate_view, mean_metrics, train_on_dataset
+    from flightrecon.mapping.offline import evaluate_view, train_on_dataset
     from flightrecon.mapping.ply import save_map
 
     if args.holdout < 0:
@@ -79,9 +80,8 @@ def run(args: argparse.Namespace) -> int:
     fileio.write_json(out / run_folder.METRICS, summary)
     for split in ("test", "train"):
         mm = summary[split]["mean"]
-        if mm:
-            print(f"{split} ({len(views[split])} views): PSNR {mm['psnr']:.2f} dB, SSIM {mm['ssim']:.4f}, "
-                  f"depth L1 {100 * mm['depth_l1']:.2f} cm")
+        if mm["views"]:
+            print(f"{split} ({mm['views']} views): {summary_line(mm)}")
     print(f"{len(mapper.map)} splats, map.ply {summary['map_mb']:.2f} MB, "
           f"{summary['seconds_per_frame_mean']:.2f} s/frame; wrote {out}")
     return 0

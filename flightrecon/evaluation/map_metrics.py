@@ -21,10 +21,11 @@ from flightrecon.config import ScenarioConfig
 from flightrecon.evaluation.lpips_metric import LpipsMetric
 from flightrecon.evaluation.mesh_metrics import surface_metrics
 from flightrecon.evaluation.tsdf import fuse_depth_maps
-from flightrecon.evaluation.views import EvaluationSet, mean_metrics
+from flightrecon.evaluation.views import EvaluationSet
 from flightrecon.geometry import camera_pose, pixel_rays
 from flightrecon.mapping.losses import normals_from_depth
 from flightrecon.mapping.store import GaussianMap
+from flightrecon.metric_defs import cm, mean_metrics
 from flightrecon.render import RenderOutput, render
 from flightrecon.scene.surface_distance import SurfaceDistance
 
@@ -95,11 +96,6 @@ def normal_angle_error_deg(normal: torch.Tensor, depth_gt: torch.Tensor, K: np.n
     return float(torch.rad2deg(torch.acos(cos[ok])).mean())
 
 
-def _nanmean(values: list[float]) -> float:
-    v = [x for x in values if not np.isnan(x)]
-    return float(np.mean(v)) if v else float("nan")
-
-
 def evaluate_map(source, cfg: ScenarioConfig, truth: EvaluationTruth,
                  lpips: LpipsMetric | None) -> tuple[dict, dict, trimesh.Trimesh]:
     """(metrics, first-view renders, TSDF mesh) of a map: image metrics on the evaluation views,
@@ -109,18 +105,18 @@ def evaluate_map(source, cfg: ScenarioConfig, truth: EvaluationTruth,
     r = (MapRenderer(source, cfg.camera.near, cfg.camera.far, cfg.mapper.backend)
          if isinstance(source, GaussianMap) else source)
     ev = truth.views
-    per_view, na, lp = [], [], []
+    per_view = []
     first: dict = {}
     for i, out, color, metrics in ev.rendered_views(r, ("features", "alpha", "depth", "normal")):
-        per_view.append(metrics)
-        na.append(normal_angle_error_deg(out.normal[0], ev.depth[i], ev.K))
+        metrics["normal_err_deg"] = normal_angle_error_deg(out.normal[0], ev.depth[i], ev.K)
         if lpips is not None and lpips.available:
-            lp.append(lpips(color, ev.rgb[i]))
+            metrics["lpips"] = lpips(color, ev.rgb[i])
+        per_view.append(metrics)
         if i == 0:
             first = {"gt_rgb": ev.rgb[0].numpy(), "gt_depth": ev.depth[0, ..., 0].numpy(),
                      "rgb": color.numpy(), "depth": out.depth[0, ..., 0].numpy(),
-                     "normal": out.normal[0].numpy(), "psnr": per_view[0]["psnr"],
-                     "depth_l1_cm": per_view[0]["depth_l1_cm"], "normal_err_deg": na[0]}
+                     "normal": out.normal[0].numpy(), "psnr": metrics["psnr"],
+                     "depth_l1_cm": metrics["depth_l1_cm"], "normal_err_deg": metrics["normal_err_deg"]}
     depths = []
     for T in truth.fusion_poses:
         out = r.render_view(T, truth.fusion_K, truth.fusion_size, truth.fusion_size, outputs=("alpha", "depth"))
@@ -132,15 +128,14 @@ def evaluate_map(source, cfg: ScenarioConfig, truth: EvaluationTruth,
     mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
     geo = surface_metrics(mesh, truth.surface, truth.surface_points, m.sample_points, m.fscore_threshold)
     metrics = {
+        "lpips": "n/a",  # replaced by the mean where LPIPS was computed
         **mean_metrics(per_view),
-        "lpips": float(np.mean(lp)) if lp else "n/a",
         "lpips_note": lpips.reason if lpips is not None else "not computed",
-        "normal_err_deg": _nanmean(na),
-        "accuracy_cm": 100 * geo["accuracy"], "completion_cm": 100 * geo["completion"],
-        "chamfer_cm": 100 * geo["chamfer"], "precision": geo["precision"], "recall": geo["recall"],
-        "fscore": geo["fscore"], "fscore_threshold_cm": 100 * m.fscore_threshold,
+        "accuracy_cm": cm(geo["accuracy"]), "completion_cm": cm(geo["completion"]),
+        "chamfer_cm": cm(geo["chamfer"]), "precision": geo["precision"], "recall": geo["recall"],
+        "fscore": geo["fscore"], "fscore_threshold_cm": cm(m.fscore_threshold),
         "mesh_vertices": int(len(mesh.vertices)), "gt_points_visible": int(len(truth.surface_points)),
         "gt_visible_area_m2": truth.visible_area_m2, "gt_total_area_m2": truth.total_area_m2,
-        "views": int(len(ev.poses)), "fusion_views": int(len(truth.fusion_poses)),
+        "fusion_views": int(len(truth.fusion_poses)),
     }
     return metrics, first, mesh

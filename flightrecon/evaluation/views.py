@@ -29,6 +29,7 @@ from flightrecon.config import ScenarioConfig
 from flightrecon.evaluation.visible_surface import FreeSpace, room_free_space
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim_map
+from flightrecon.metric_defs import cm, mean_metrics
 
 _MAX_TRIES = 200
 HEADING_SECTORS = 8
@@ -96,7 +97,7 @@ def view_metrics(color: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor, 
     r = SSIM_RADIUS
     smap = ssim_map(color, gt_rgb, radius=r)
     out = {"psnr": float(psnr(color, gt_rgb)), "ssim": float(smap.mean()),
-           "depth_l1_cm": 100.0 * float(depth_l1(depth, gt_depth)), "covered_share": share}
+           "depth_l1_cm": cm(depth_l1(depth, gt_depth)), "covered_share": share}
     nan = math.nan
     if share == 0.0:
         return {**out, "psnr_covered": nan, "ssim_covered": nan, "depth_l1_cm_covered": nan}
@@ -106,17 +107,7 @@ def view_metrics(color: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor, 
     dl = (depth - torch.nan_to_num(gt_depth)).abs()[valid]
     return {**out, "psnr_covered": 10.0 * math.log10(1.0 / mse) if mse > 0 else math.inf,
             "ssim_covered": float(smap[inner].mean()) if inner.any() else nan,
-            "depth_l1_cm_covered": 100.0 * float(dl.mean()) if len(dl) else nan}
-
-
-def mean_metrics(per_view: list[dict]) -> dict:
-    """Means over views (NaN entries, e.g. covered metrics of an uncovered view, left out)."""
-    keys = per_view[0].keys() if per_view else ()
-    out = {}
-    for k in keys:
-        vals = [v[k] for v in per_view if not (isinstance(v[k], float) and math.isnan(v[k]))]
-        out[k] = float(np.mean(vals)) if vals else math.nan
-    return out
+            "depth_l1_cm_covered": cm(dl.mean()) if len(dl) else nan}
 
 
 @dataclass
@@ -149,8 +140,8 @@ class EvaluationSet:
 
     def evaluate(self, renderer) -> dict:
         """Mean view metrics (`view_metrics`: PSNR dB, SSIM, depth L1 cm on valid ground truth, on all
-        and on covered pixels, covered share) over the views."""
-        return {**mean_metrics([m for *_, m in self.rendered_views(renderer)]), "views": len(self.poses)}
+        and on covered pixels, covered share) over the views, as `mean_metrics` averages them."""
+        return mean_metrics([m for *_, m in self.rendered_views(renderer)])
 
     @staticmethod
     def frame_quality(rendered, rgb: np.ndarray, depth: np.ndarray) -> tuple[float, float]:
@@ -158,6 +149,5 @@ class EvaluationSet:
         the map's render at the frame's pose (`rendered`: a RenderOutput with features and depth)."""
         color = rendered.features[0].detach().clamp(0, 1).cpu()
         p = float(psnr(color, torch.from_numpy(np.asarray(rgb, np.float32))))
-        d = 100.0 * float(depth_l1(rendered.depth[0].detach().cpu(),
-                                   torch.from_numpy(np.asarray(depth, np.float32))[..., None]))
+        d = cm(depth_l1(rendered.depth[0].detach().cpu(), torch.from_numpy(np.asarray(depth, np.float32))[..., None]))
         return p, d

@@ -37,21 +37,20 @@ from flightrecon import provenance, run_folder
 from flightrecon.active.registry import proposes_own_candidates, role_of
 from flightrecon.evaluation.intervals import mean_interval, paired_difference
 from flightrecon.fileio import atomic_path, write_text
+from flightrecon.metric_defs import METRICS, mean_defined, select
 
-OVERALL = [("psnr", "PSNR", "up", 2), ("psnr_covered", "PSNR cov.", "up", 2), ("covered_share", "Covered", "up", 3),
-           ("ssim", "SSIM", "up", 3), ("ssim_covered", "SSIM cov.", "up", 3), ("lpips", "LPIPS", "down", 3),
-           ("depth_l1_cm", "D-L1 [cm]", "down", 2), ("depth_l1_cm_covered", "D-L1 cov. [cm]", "down", 2),
-           ("accuracy_cm", "Acc [cm]", "down", 2), ("completion_cm", "Comp [cm]", "down", 2),
-           ("chamfer_cm", "CD [cm]", "down", 2), ("fscore", "F-score", "up", 3)]
-PER_SCENE = [("psnr", "PSNR"), ("depth_l1_cm", "D-L1"), ("fscore", "F-score")]
-SNAPSHOT_KEYS = ("accuracy_cm", "completion_cm")
-RANKED = [("psnr", "PSNR", "up"), ("depth_l1_cm", "D-L1", "down"), ("fscore", "F-score", "up")]
+# the metrics of each table and figure; labels, units, directions and decimals are metric_defs'
+OVERALL = select("psnr", "psnr_covered", "covered_share", "ssim", "ssim_covered", "lpips", "depth_l1_cm",
+                 "depth_l1_cm_covered", "accuracy_cm", "completion_cm", "chamfer_cm", "fscore")
+PER_SCENE = select("psnr", "depth_l1_cm", "fscore")
+SNAPSHOT = select("accuracy_cm", "completion_cm")  # mesh metrics of the in-flight map snapshots
+RANKED = select("psnr", "depth_l1_cm", "fscore")
+OVER_FRAMES_FIGURE = select("psnr", "depth_l1_cm") + SNAPSHOT
 SHARED_PIPELINE = ("Every method here flies with the same 2DGS mapper, planner, candidate library, "
                    "simulator and evaluation: only the view-selection criterion differs. The paper ran "
                    "GauSS-MI and FisherRF on a 3DGS pipeline and ActiveGS with its own planner, so its "
                    "comparison also mixes in those differences; this one isolates the criterion.")
-PAIRED = [("psnr", "PSNR", 2), ("psnr_covered", "PSNR cov.", 2), ("depth_l1_cm", "D-L1 [cm]", 2),
-          ("completion_cm", "Comp [cm]", 2), ("fscore", "F-score", 3)]
+PAIRED = select("psnr", "psnr_covered", "depth_l1_cm", "completion_cm", "fscore")
 
 
 def _read_frames(path: Path) -> list[dict]:
@@ -81,8 +80,8 @@ def collect(run_dirs: list[Path]) -> list[dict]:
         series = {k: np.array([_num(r.get(k)) for r in rows]) for k in
                   ("eval_psnr", "eval_depth_l1_cm", "t_score", "n_feasible")}
         over = _read_frames(d / run_folder.OVER_FRAMES) if (d / run_folder.OVER_FRAMES).is_file() else []
-        for key in SNAPSHOT_KEYS:
-            series[f"eval_{key}"] = _snapshot_series(over, len(rows), ev, key)
+        for m in SNAPSHOT:
+            series[f"eval_{m.key}"] = _snapshot_series(over, len(rows), ev, m.key)
         recs.append({
             "dir": d, "scene": d.parent.parent.name, "method": met["method"], "seed": met["seed"], **ev,
             "code_states": provenance.code_states(d), "cpus": provenance.cpus(d),
@@ -109,9 +108,9 @@ def _snapshot_series(over: list[dict], n_frames: int, final: dict, key: str) -> 
 def _checkpoints(over: list[dict], n_frames: int, final: dict) -> dict[int, dict[str, float]]:
     """{frame: {metric: value}} of the ranked metrics at every in-flight evaluation (rows of
     eval_over_frames.csv) and at the end."""
-    out = {int(r["frame"]): {k: _num(r.get(k)) for k, _, _ in RANKED} for r in over}
+    out = {int(r["frame"]): {m.key: _num(r.get(m.key)) for m in RANKED} for r in over}
     if n_frames:
-        out[n_frames - 1] = {k: _num(final.get(k)) for k, _, _ in RANKED}
+        out[n_frames - 1] = {m.key: _num(final.get(m.key)) for m in RANKED}
     return out
 
 
@@ -140,19 +139,18 @@ def ranking_over_frames(recs: list[dict]) -> RankingCheck | None:
     end = frames[-1]
     early = min(frames[:-1] or frames, key=lambda f: abs(f + 1 - 2 * (end + 1) / 3))
     rows, order = [], {}
-    for key, label, better in RANKED:
+    for metric in RANKED:
         for f in frames:
-            means = {m: _mean(r["checkpoints"][f][key] for r in runs if r["method"] == m) for m in methods}
-            order[key, f] = sorted(methods, key=lambda m: means[m] if better == "down" else -means[m])
-            digits = 3 if key == "fscore" else 2
-            rows.append([label, str(f + 1), " > ".join(f"{m} ({_fmt(means[m], digits)})" for m in order[key, f])])
-    same = {label: order[key, early] == order[key, end] for key, label, _ in RANKED}
+            means = {m: _mean(r["checkpoints"][f][metric.key] for r in runs if r["method"] == m) for m in methods}
+            order[metric, f] = sorted(methods, key=lambda m: metric.sort_key(means[m]))
+            rows.append([metric.label, str(f + 1),
+                         " > ".join(f"{m} ({metric.format(means[m])})" for m in order[metric, f])])
+    same = {metric.label: order[metric, early] == order[metric, end] for metric in RANKED}
     return RankingCheck(rows, same, early + 1, end + 1, len(keys))
 
 
 def _mean(vals) -> float:
-    v = [x for x in (_num(a) for a in vals) if not math.isnan(x)]
-    return float(np.mean(v)) if v else math.nan
+    return mean_defined(_num(a) for a in vals)
 
 
 def _fmt(v: float, digits: int) -> str:
@@ -237,8 +235,8 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
     note = f"{len(scenes)} scene(s), {len(seeds)} seed(s); {code}"
     rows = []
     for m in methods:
-        rows.append([m] + [mean_interval(_scene_means(recs, m, k)).format(dg) for k, _, _, dg in OVERALL])
-    paths = _write_table(out, "overall", ["Method"] + [h for _, h, _, _ in OVERALL], rows,
+        rows.append([m] + [mean_interval(_scene_means(recs, m, k.key)).format(k.decimals) for k in OVERALL])
+    paths = _write_table(out, "overall", ["Method"] + [k.heading for k in OVERALL], rows,
                          f"Overall evaluation results (mean over scenes ± 95% t-interval with the scene as the "
                          f"unit: each scene's seeds are averaged first; {note}; 'cov.': on pixels the map "
                          "covers, alpha >= 0.5)")
@@ -246,17 +244,18 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
         rows = []
         for m in [m for m in methods if m != ours]:
             for scene in [None] + scenes:
-                rows.append([m, scene or "all"] + [_paired_cell(recs, m, ours, k, dg, scene) for k, _, dg in PAIRED])
+                rows.append([m, scene or "all"] + [_paired_cell(recs, m, ours, k.key, k.decimals, scene)
+                                                   for k in PAIRED])
         paths += _write_table(out, f"paired_{ours}",
-                              ["Method", "Scene"] + [h for _, h, _ in PAIRED], rows,
+                              ["Method", "Scene"] + [k.heading for k in PAIRED], rows,
                               f"Paired difference to {ours} (method - {ours} on the same scenes and seeds; "
                               "'all': mean over scenes of the seed-averaged difference, 95% interval over "
                               f"scenes; per scene: over seeds; * excludes zero; {note})")
     rows = []
     for m in methods:
-        for k, h in PER_SCENE:
-            rows.append([m, h] + [mean_interval(_by_run(recs, m, k, s).values()).format(3 if k == "fscore" else 2)
-                                  for s in scenes])
+        for k in PER_SCENE:
+            rows.append([m, k.heading] + [mean_interval(_by_run(recs, m, k.key, s).values()).format(k.decimals)
+                                          for s in scenes])
     paths += _write_table(out, "per_scene", ["Method", "Metric"] + scenes, rows,
                           f"Per-scene evaluation results (mean ± 95% interval with the seed as the unit, over "
                           f"{len(seeds)} seed(s); {code})")
@@ -343,16 +342,14 @@ def write_figures(recs: list[dict], out: Path) -> list[Path]:
     methods = _methods(recs)
     paths = []
 
-    fig, axes = plt.subplots(1, 4, figsize=(18, 3.6))
-    for ax, (key, label) in zip(axes, (("eval_psnr", "PSNR [dB]"), ("eval_depth_l1_cm", "Depth L1 [cm]"),
-                                       ("eval_accuracy_cm", "Accuracy [cm]"),
-                                       ("eval_completion_cm", "Completion [cm]"))):
+    fig, axes = plt.subplots(1, len(OVER_FRAMES_FIGURE), figsize=(18, 3.6))
+    for ax, metric in zip(axes, OVER_FRAMES_FIGURE):
         for m in methods:
-            f, mean, lo, hi = _curve([r for r in recs if r["method"] == m], key)
+            f, mean, lo, hi = _curve([r for r in recs if r["method"] == m], f"eval_{metric.key}")
             ax.plot(f + 1, mean, marker="o", ms=3, label=m)
             ax.fill_between(f + 1, lo, hi, alpha=0.2)
         ax.set_xlabel("collected frames")
-        ax.set_ylabel(label)
+        ax.set_ylabel(metric.heading)
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
     fig.suptitle("Evaluation-view quality over collected frames (mean, min-max across seeds)", fontsize=9)
@@ -388,7 +385,7 @@ def write_figures(recs: list[dict], out: Path) -> list[Path]:
         ax.scatter([x], [y], s=60)
         ax.annotate(f"{m}\n{mb:.2f} MB", (x, y), fontsize=8, xytext=(5, 5), textcoords="offset points")
     ax.set_xlabel("per-candidate evaluation [ms]")
-    ax.set_ylabel("PSNR [dB]")
+    ax.set_ylabel(METRICS["psnr"].heading)
     if all(np.isfinite(x) and x > 0 for x in xs):
         ax.set_xscale("log")
     ax.grid(alpha=0.3)
@@ -413,9 +410,10 @@ def _novel_view_grid(recs: list[dict], methods: list[str], path: Path, plt) -> P
         _panel(axes[0, 1], gt["gt_depth"], "ground truth depth", vmax=vmax)
         axes[0, 2].axis("off")
         for i, (m, v) in enumerate(rows, start=1):
-            _panel(axes[i, 0], np.clip(v["rgb"], 0, 1), f"{m}: PSNR {float(v['psnr']):.2f} dB")
-            _panel(axes[i, 1], v["depth"], f"depth L1 {float(v['depth_l1_cm']):.2f} cm", vmax=vmax)
-            _panel(axes[i, 2], 0.5 * (1 - v["normal"]), f"normal err {float(v['normal_err_deg']):.1f} deg")
+            text = {k: METRICS[k].describe(float(v[k])) for k in ("psnr", "depth_l1_cm", "normal_err_deg")}
+            _panel(axes[i, 0], np.clip(v["rgb"], 0, 1), f"{m}: {text['psnr']}")
+            _panel(axes[i, 1], v["depth"], text["depth_l1_cm"], vmax=vmax)
+            _panel(axes[i, 2], 0.5 * (1 - v["normal"]), text["normal_err_deg"])
     fig.suptitle(f"Novel view (scene {scene}, evaluation view 0)", fontsize=9)
     return _save(fig, path, plt)
 

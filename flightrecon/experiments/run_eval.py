@@ -25,10 +25,11 @@ from flightrecon.evaluation.visible_surface import room_free_space, visible_surf
 from flightrecon.fileio import atomic_path, write_json, write_text
 from flightrecon.geometry import intrinsics
 from flightrecon.mapping.ply import load_map
+from flightrecon.metric_defs import select
 from flightrecon.rig import build_rig
 from flightrecon.scene.surface_distance import SurfaceDistance
 
-OVER_FRAMES_KEYS = ("psnr", "depth_l1_cm", "accuracy_cm", "completion_cm", "chamfer_cm", "fscore")
+OVER_FRAMES = select("psnr", "depth_l1_cm", "accuracy_cm", "completion_cm", "chamfer_cm", "fscore")
 
 
 def evaluation_views_for(cfg: ScenarioConfig) -> EvaluationSet:
@@ -71,10 +72,11 @@ def evaluate_run(run_dir: str | Path, lpips_weights: str | None = None, override
 
 
 def _write_over_frames(run_dir: Path, cfg: ScenarioConfig, truth: EvaluationTruth) -> None:
-    """The metrics of OVER_FRAMES_KEYS (LPIPS, the costliest, is not among them) of the flight's map snapshots (mesh accuracy over collected frames for the report)."""
+    """The metrics of OVER_FRAMES (LPIPS, the costliest, is not among them) of the flight's map snapshots
+    (mesh accuracy over collected frames for the report)."""
     snaps = sorted((run_dir / run_folder.SNAPSHOTS).glob("map_*.ply"))
-    rows = [",".join(("frame",) + OVER_FRAMES_KEYS)]
+    rows = [",".join(["frame"] + [k.key for k in OVER_FRAMES])]
     for snap in snaps:
         m, _, _ = evaluate_map(load_map(snap), cfg, truth, None)
-        rows.append(",".join([run_folder.snapshot_frame(snap)] + [f"{m[k]:.6g}" for k in OVER_FRAMES_KEYS]))
+        rows.append(",".join([run_folder.snapshot_frame(snap)] + [f"{m[k.key]:.6g}" for k in OVER_FRAMES]))
     write_text(run_dir / run_folder.OVER_FRAMES, "\n".join(rows) + "\n")

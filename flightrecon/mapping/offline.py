@@ -23,6 +23,7 @@ from flightrecon.dataset import Dataset, Frame
 from flightrecon.geometry import backproject_depth, project_points
 from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim
 from flightrecon.mapping.mapper import FrameStats, OnlineMapper
+from flightrecon.metric_defs import cm
 
 
 def split_holdout(n: int, holdout: int) -> tuple[list[int], list[int]]:
@@ -60,7 +61,7 @@ def train_on_dataset(ds: Dataset, cfg: ScenarioConfig, holdout: int = 5, limit: 
 
 def evaluate_view(mapper: OnlineMapper, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray,
                   T_wc: np.ndarray) -> tuple[dict, np.ndarray, np.ndarray]:
-    """PSNR, SSIM and depth L1 (m, over valid observed depth) of the map at one view, and the renders."""
+    """PSNR, SSIM and depth L1 (cm, over valid observed depth) of the map at one view, and the renders."""
     H, W = depth.shape[:2]
     out = mapper.render_view(T_wc, K, W, H, outputs=("features", "alpha", "depth"))
     color = out.features[0].clamp(0.0, 1.0).cpu().double()
@@ -69,7 +70,7 @@ def evaluate_view(mapper: OnlineMapper, rgb: np.ndarray, depth: np.ndarray, K: n
     obs_d = torch.from_numpy(np.asarray(depth, np.float64))[..., None]
     obs_d = torch.where(obs_d <= mapper.far, obs_d, torch.zeros_like(obs_d))
     metrics = {"psnr": float(psnr(color, obs_rgb)), "ssim": float(ssim(color, obs_rgb)),
-               "depth_l1": float(depth_l1(d, obs_d))}
+               "depth_l1_cm": cm(depth_l1(d, obs_d))}
     return metrics, color.numpy(), d[..., 0].numpy()
 
 
@@ -102,20 +103,13 @@ def training_coverage(view: Frame, training: list[Frame], max_footprint: float =
 
 def masked_metrics(color: np.ndarray, depth: np.ndarray, rgb: np.ndarray, observed: np.ndarray,
                    mask: np.ndarray) -> dict:
-    """PSNR and depth L1 (m) of renders against observations over the pixels in `mask` only."""
+    """PSNR and depth L1 (cm) of renders against observations over the pixels in `mask` only."""
     if not mask.any():
-        return {"psnr": float("nan"), "depth_l1": float("nan")}
+        return {"psnr": float("nan"), "depth_l1_cm": float("nan")}
 
     def pixels(x: np.ndarray) -> torch.Tensor:  # the masked pixels as a one-row image [1, P, C]
         x = np.asarray(x, np.float64)[mask]
         return torch.from_numpy(x.reshape(1, len(x), -1))
 
     return {"psnr": float(psnr(pixels(color), pixels(rgb))),
-            "depth_l1": float(depth_l1(pixels(depth), pixels(observed)))}
-
-
-def mean_metrics(rows: list[dict]) -> dict:
-    if not rows:
-        return {}
-    keys = [k for k in rows[0] if isinstance(rows[0][k], float)]
-    return {k: float(np.mean([r[k] for r in rows])) for k in keys}
+            "depth_l1_cm": cm(depth_l1(pixels(depth), pixels(observed)))}
