@@ -227,7 +227,8 @@ class OutputConfig:
     dataset: bool = option(False, doc="also keep the captured RGB-D frames and poses as a dataset in the run folder "
                            "(dataset/transforms.json, nerfstudio's convention, as `fly --survey` writes)")
     ply_extras: bool = option(False, doc="map.ply (and snapshots) also hold our own per-splat columns: raw colors, "
-                          "two-sided reliability, frame created, times observed; off: the 2DGS columns alone")
+                              "frame created, times observed, and the map columns the selector declares "
+                              "(docs/outputs.md); off: the 2DGS columns alone")
     record_map_every: int = option(5, 1, None, doc="log the splat map every k frames (and at the last frame)")
     record_map_max_splats: int = option(60000, 1, None, doc="splats logged per map snapshot (an even stride beyond)")
     record_mesh_cell: float = option(0.06, 0.005, 1.0, doc="vertex-clustering cell of the recorded scene mesh (m)")

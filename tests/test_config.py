@@ -58,3 +58,22 @@ def test_overrides_and_round_trip(tmp_path: Path):
     p = tmp_path / "resolved.toml"
     p.write_text(to_toml(cfg))
     assert load_config(p) == cfg
+
+
+def test_selector_sections_round_trip_and_keys_of_the_older_layout_move_to_them(tmp_path):
+    cfg = load_config("demo", ["reliability.w_min=0.2", "activegs.voxel=0.3"])
+    text = to_toml(cfg)
+    assert "[reliability]\nw_min = 0.2" in text and "\n[activegs]\nvoxel = 0.3" in text
+    path = tmp_path / "run.toml"
+    path.write_text(text)
+    assert load_config(path) == cfg
+    # a config.toml of an earlier run: [baselines] and the selector's method-specific keys
+    old = load_config("demo", ["baselines.gaussmi_lambda_T=3.0", "baselines.fisherrf_lambda=0.5",
+                               "selector.explore_range=4.0", "selector.gain_floor=0.0"])
+    assert old.gaussmi.lambda_T == 3.0 and old.fisherrf.regularizer == 0.5
+    assert old.explore.range == 4.0 and old.reliability.gain_floor == 0.0
+    assert "baselines" not in to_toml(old)
+    with pytest.raises(ConfigError, match="unknown config key 'baselines' "):
+        load_config("demo", ["baselines.nope=1"])
+    with pytest.raises(ConfigError, match=r"unknown config key 'reliabilty' \(valid: .*reliability"):
+        load_config("demo", ["reliabilty.w_min=0.2"])

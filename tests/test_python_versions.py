@@ -14,7 +14,7 @@ NEWER_STDLIB = {"tomllib": (3, 11), "wsgiref.types": (3, 11)}  # modules added a
 
 
 def _sources() -> list[Path]:
-    return sorted(p for d in ("flightrecon", "tools", "tests") for p in (ROOT / d).rglob("*.py"))
+    return sorted(p for d in ("flightrecon", "tools", "tests", "examples") for p in (ROOT / d).rglob("*.py"))
 
 
 def _guarded(node: ast.AST, parents: dict) -> bool:
