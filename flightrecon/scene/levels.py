@@ -52,7 +52,8 @@ def _levels_from_geometry(vertices: np.ndarray, faces: np.ndarray) -> Levels:
     if not flat.any():
         return Levels(z_lo, None, "geometry")
     z = tri[flat, :, 2].mean(axis=1)
-    bins = np.floor((z - z_lo) / BIN).astype(np.int64)
+    # a face's mean height can fall a rounding error below the lowest vertex: it belongs to bin 0
+    bins = np.maximum(np.floor((z - z_lo) / BIN), 0).astype(np.int64)
     hist = np.bincount(bins, weights=area[flat])
     slab = int(round(SLAB / BIN))
     large = np.flatnonzero(hist >= LARGE * hist.max())
