@@ -23,10 +23,10 @@ import pytest
 from PIL import Image
 
 from flightrecon.config import load_config
-from flightrecon.scene import procedural
 from flightrecon.scene.levels import scene_levels
 from flightrecon.scene.source import scene_from_config
 from flightrecon.scene.types import Scene
+from mesh_scenes import coarse_room
 
 # file coordinates = R @ world (z up): y up maps world z to file +y, -y up maps it to file -y
 Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -35,10 +35,7 @@ MINUS_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 @pytest.fixture(scope="module")
 def room() -> Scene:
-    with pytest.MonkeyPatch.context() as mp:
-        for cell in ("CELL_FLOOR", "CELL_WALL", "CELL_CEIL", "CELL_FURN", "CELL_FINE"):
-            mp.setattr(procedural, cell, 4 * getattr(procedural, cell))
-        return procedural.make_scene("room0", 0)
+    return coarse_room()
 
 
 def _ply_header(n_vertices: int, vertex_props: list[tuple[str, str]], n_faces: int) -> bytes:

@@ -20,10 +20,10 @@ from flightrecon.errors import ConfigError, SceneError
 from flightrecon.scene import load_scene
 from flightrecon.scene.gravity import AXIS_ROTATIONS
 from flightrecon.scene.loaders import _Y_UP_TO_Z_UP
-from flightrecon.scene import procedural
 from flightrecon.scene.source import write_scene_dir
 from flightrecon.scene.stats import summary
 from flightrecon.scene.types import Scene
+from mesh_scenes import coarse_room
 
 DATA = Path(__file__).parent / "data"
 
@@ -31,10 +31,7 @@ DATA = Path(__file__).parent / "data"
 @pytest.fixture(scope="module")
 def room() -> Scene:
     """room0 with 4x coarser surface cells than the generator's (the same room, a tenth of the faces)."""
-    with pytest.MonkeyPatch.context() as mp:
-        for cell in ("CELL_FLOOR", "CELL_WALL", "CELL_CEIL", "CELL_FURN", "CELL_FINE"):
-            mp.setattr(procedural, cell, 4 * getattr(procedural, cell))
-        return procedural.make_scene("room0", 0)
+    return coarse_room()
 
 
 @pytest.fixture(scope="module")
