@@ -23,6 +23,7 @@ import pytest
 from PIL import Image
 
 from flightrecon.config import load_config
+from flightrecon.errors import SceneError
 from flightrecon.scene.levels import scene_levels
 from flightrecon.scene.source import scene_from_config
 from flightrecon.scene.types import Scene
@@ -156,3 +157,14 @@ def test_a_floor_whose_faces_average_a_rounding_error_below_it_is_found():
     assert v[:3, 2].mean() < -0.1
     levels = _levels_from_geometry(v, np.array([[0, 1, 2], [3, 5, 4]]))
     assert levels.floor_z == pytest.approx(-0.1) and levels.ceiling_z == pytest.approx(2.5)
+
+
+def test_a_scan_in_millimetres_is_refused_with_the_scale_that_fits(room, tmp_path):
+    path = write_scannet(Scene(room.name, room.vertices * 1000.0, room.faces, vertex_colors=room.vertex_colors),
+                         tmp_path / "mm")
+    height_m = float(np.ptp(room.vertices[:, 2]))
+    with pytest.raises(SceneError, match=rf"scene {path} spans \d+ m .*likely in another unit; with "
+                                         rf"scene.unit_scale = 0.001 it is {height_m:.2f} m tall"):
+        scene_from_config(load_config(None, [f"scene.path={path}"]).scene)
+    scene = scene_from_config(load_config(None, [f"scene.path={path}", "scene.unit_scale=0.001"]).scene)
+    np.testing.assert_allclose(np.sort(scene.vertices[:, 2]), np.sort(room.vertices[:, 2]), atol=1e-5)

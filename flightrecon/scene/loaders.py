@@ -26,6 +26,9 @@ META_FILE = "scene_meta.json"
 MESH_SUFFIXES = (".ply", ".obj", ".glb", ".gltf")
 _FRAME_KEYS = ("floor_z", "ceiling_z", "room_box", "free_box", "spawn", "openings")
 UP_AXES = ("z", "y", "auto")
+MAX_EXTENT_M = 200.0  # a scene larger than this in any direction is not a room read in the right unit
+ROOM_HEIGHT_M = (1.8, 8.0)  # the height of a room, to guess a file's unit from
+UNIT_GUESSES = (0.001, 0.01, 0.0254)  # millimetres, centimetres, inches
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +76,23 @@ def load_scene(path: str | os.PathLike, unit_scale: float = 1.0, up_axis: str = 
     validate(scene, path)
     R = _orientation(scene, path, unit_scale, up_axis, up_vector, rotation_deg)
     _to_world(scene, unit_scale, R)
+    _check_size(scene, path, unit_scale)
     return scene
+
+
+def _check_size(scene: Scene, path: Path, unit_scale: float) -> None:
+    """Refuse a scene far larger than any room (almost always a file in millimetres or centimetres read
+    as metres), naming the scale that gives it a room's height, before anything sized by it is built."""
+    extent = np.ptp(scene.vertices, axis=0)
+    if float(extent.max()) <= MAX_EXTENT_M:
+        return
+    height = float(extent[2])
+    fits = [scale for scale in UNIT_GUESSES if ROOM_HEIGHT_M[0] <= height * scale <= ROOM_HEIGHT_M[1]]
+    guess = (f"with scene.unit_scale = {unit_scale * fits[0]:g} it is {height * fits[0]:.2f} m tall" if fits
+             else "set scene.unit_scale to the file's unit in metres")
+    raise SceneError(f"scene {path} spans {float(extent.max()):.0f} m ({' x '.join(f'{x:.0f}' for x in extent)} m at "
+                     f"scene.unit_scale = {unit_scale:g}), more than any room: its coordinates are likely in "
+                     f"another unit; {guess}")
 
 
 def validate(scene: Scene, path: Path | str) -> None:
