@@ -1,0 +1,125 @@
+"""Evaluation that holds on open and holey scans: the room's free space does not leak through a hole
+in a wall, an open ceiling or a missing floor patch. Scans are built here: a hand-made room with
+single-sheet walls (its volume and areas known by hand) and a procedural room stripped to what a
+scanner sees (inner faces only), its ceiling removed, a hole cut in a wall and a patch in its
+floor, written as a PLY with vertex colors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from flightrecon.cli import main as cli_main
+from flightrecon.evaluation.visible_surface import visible_surface
+from flightrecon.scene.free_space import room_free_space
+from flightrecon.scene.procedural import make_scene
+from flightrecon.scene.replica_ply import write_replica_ply
+from flightrecon.scene.types import Scene
+
+L, W, H = 4.0, 3.0, 2.5  # the hand-made room, floor at z = 0, centred on the origin
+HOLE = 0.6  # side of the square hole in its +x wall, centred at y = 0, z = 1.2
+CORRIDOR = 2.0  # floor scanned beyond the +x wall (through a doorway, say): the scan's box holds it
+FLOOR_HOLE = 0.5  # side of the square hole in its floor, centred at x = y = -1
+
+
+def _sheet(center, u, v, cell: float = 0.05) -> trimesh.Trimesh:
+    """A rectangle center +- u +- v as a grid of `cell`-sized squares (so holes can be cut on the grid)."""
+    c, u, v = (np.asarray(x, float) for x in (center, u, v))
+    n, m = (int(round(2 * np.linalg.norm(a) / cell)) for a in (u, v))
+    i, j = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, m + 1), indexing="ij")
+    verts = c + i.reshape(-1, 1) * u + j.reshape(-1, 1) * v
+    k = (np.arange(n)[:, None] * (m + 1) + np.arange(m)[None, :]).ravel()
+    quads = np.stack([k, k + m + 1, k + m + 2, k + 1], axis=1)
+    return trimesh.Trimesh(verts, np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]]), process=False)
+
+
+def _cut(mesh: trimesh.Trimesh, lo, hi) -> trimesh.Trimesh:
+    """`mesh` less the faces whose centres lie in the box [lo, hi]."""
+    c = mesh.triangles_center
+    mesh.update_faces(~((c > lo) & (c < hi)).all(axis=1))
+    return mesh
+
+
+def _holey_room(hole: bool = True, ceiling: bool = False) -> Scene:
+    """Floor and four single-sheet walls of an L x W x H room, open at the top unless `ceiling`, with a
+    HOLE x HOLE hole in the +x wall and a FLOOR_HOLE patch missing in the floor when `hole`, and the
+    corridor floor beyond the +x wall."""
+    e = 1e-3
+    floor = _sheet([0, 0, 0], [L / 2, 0, 0], [0, W / 2, 0])
+    wall_x = _sheet([L / 2, 0, H / 2], [0, W / 2, 0], [0, 0, H / 2])
+    if hole:
+        f = FLOOR_HOLE / 2
+        floor = _cut(floor, [-1 - f, -1 - f, -e], [-1 + f, -1 + f, e])
+        wall_x = _cut(wall_x, [L / 2 - e, -HOLE / 2, 1.2 - HOLE / 2], [L / 2 + e, HOLE / 2, 1.2 + HOLE / 2])
+    parts = [floor, wall_x, _sheet([-L / 2, 0, H / 2], [0, W / 2, 0], [0, 0, H / 2]),
+             _sheet([0, W / 2, H / 2], [L / 2, 0, 0], [0, 0, H / 2]),
+             _sheet([0, -W / 2, H / 2], [L / 2, 0, 0], [0, 0, H / 2]),
+             _sheet([L / 2 + CORRIDOR / 2, 0, 0], [CORRIDOR / 2, 0, 0], [0, W / 2, 0])]
+    if ceiling:
+        parts.append(_sheet([0, 0, H], [L / 2 + CORRIDOR / 2, 0, 0], [0, W / 2, 0]))
+    mesh = trimesh.util.concatenate(parts)
+    mesh.merge_vertices()
+    return Scene("holey_room", np.asarray(mesh.vertices), np.asarray(mesh.faces, np.int64))
+
+
+def test_the_free_space_stays_in_a_room_with_a_wall_hole_a_floor_hole_and_no_ceiling():
+    scene = _holey_room()
+    free = room_free_space(scene, np.array([0.0, 0.0, 1.2]))
+    assert not free.enclosed
+    # the room's inner volume less about one voxel where the free space meets each face
+    assert 0.95 * L * W * H < free.volume_m3 <= L * W * H
+    outside = np.array([[L / 2 + 1.0, 0.0, 1.2],  # beyond the wall hole, above the corridor floor
+                        [L / 2 + 0.2, 0.0, 1.2],  # just behind the hole
+                        [-1.0, -1.0, -0.05],  # below the floor hole
+                        [0.0, 0.0, H + 0.3]])  # above the open top
+    assert not free.contains(outside).any()
+    inside = np.array([[L / 2 - 0.1, W / 2 - 0.1, 0.1], [-L / 2 + 0.05, 0.0, H - 0.05], [L / 2 - 0.2, 0.0, 1.2]])
+    assert free.contains(inside).all()  # corners, the top edge and the front of the hole stay in
+    # without closing holes the room would run through the wall hole into the corridor
+    assert room_free_space(scene, np.array([0.0, 0.0, 1.2]), hole_radius=0.0).contains(outside[:1]).all()
+    # what is visible from the room: its floor and the inner sides of its walls, not the corridor
+    vis = visible_surface(scene, free, 100_000)
+    inner = L * W - FLOOR_HOLE ** 2 + 2 * (L + W) * H - HOLE ** 2
+    assert vis.total_area_m2 == pytest.approx(inner + CORRIDOR * W, rel=1e-6)
+    assert vis.visible_area_m2 == pytest.approx(inner, rel=0.03)
+    assert (vis.points[:, 0] < L / 2 + 0.01).all()
+
+
+def test_a_closed_room_is_enclosed_and_its_free_space_exact():
+    scene = _holey_room(hole=False, ceiling=True)
+    free = room_free_space(scene, np.array([0.0, 0.0, 1.2]))
+    assert free.enclosed
+    assert 0.95 * L * W * H < free.volume_m3 <= L * W * H
+    assert not free.contains(np.array([[L / 2 + 1.0, 0.0, 1.2]])).any()
+
+
+@pytest.fixture(scope="module")
+def room_scan(tmp_path_factory):
+    """room0 as a scanner sees it: faces inside its room box only (no outer sides of walls, slabs or
+    recesses), no ceiling and walls cut at 2 m, a 0.6 m hole in the +x wall and a 0.5 m floor patch
+    missing; written as a PLY with vertex colors, without the generator's metadata."""
+    room = make_scene("room0", 0)
+    lo, hi = np.asarray(room.meta["room_box"], float)
+    c = room.vertices[room.faces].mean(axis=1)
+    tol = 0.01
+    keep = ((c > lo - tol) & (c < hi + tol)).all(axis=1) & (c[:, 2] < 2.0)
+    keep &= ~((np.abs(c[:, 0] - hi[0]) < tol) & (np.abs(c[:, 1]) < 0.3) & (np.abs(c[:, 2] - 1.0) < 0.3))
+    floor_patch = (np.abs(c[:, 0] - lo[0] / 2) < 0.25) & (np.abs(c[:, 1] - hi[1] / 2) < 0.25)
+    keep &= ~((np.abs(c[:, 2]) < tol) & floor_patch)
+    used, faces = np.unique(room.faces[keep], return_inverse=True)
+    scan = Scene("room0_scan", room.vertices[used], faces.reshape(-1, 3), vertex_colors=room.vertex_colors[used])
+    box_volume = (hi[0] - lo[0]) * (hi[1] - lo[1]) * 2.0  # the room box up to the cut walls' top
+    return write_replica_ply(scan, tmp_path_factory.mktemp("scan") / "mesh.ply"), box_volume
+
+
+def test_scene_info_gives_an_open_scan_a_bounded_free_volume(room_scan, capsys):
+    path, box_volume = room_scan
+    assert cli_main(["scene", "info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["enclosed"] is False
+    assert 0.7 * box_volume < info["free_volume_m3"] < box_volume  # the room up to its walls' top, less furniture
+    assert cli_main(["scene", "info", str(path)]) == 0
+    assert "not enclosed" in capsys.readouterr().out
