@@ -1,19 +1,25 @@
 """Evaluation that holds on open and holey scans: the room's free space does not leak through a hole
-in a wall, an open ceiling or a missing floor patch. Scans are built here: a hand-made room with
-single-sheet walls (its volume and areas known by hand) and a procedural room stripped to what a
-scanner sees (inner faces only), its ceiling removed, a hole cut in a wall and a patch in its
-floor, written as a PLY with vertex colors."""
+in a wall, an open ceiling or a missing floor patch; no view, however empty or perfect, makes a
+mean infinite. Scans are built here: a hand-made room with single-sheet walls (its volume and areas
+known by hand) and a procedural room stripped to what a scanner sees (inner faces only), its
+ceiling removed, a hole cut in a wall and a patch in its floor, written as a PLY with vertex
+colors."""
 
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
+import torch
 import trimesh
 
 from flightrecon.cli import main as cli_main
+from flightrecon.evaluation.views import view_metrics
 from flightrecon.evaluation.visible_surface import visible_surface
+from flightrecon.mapping.image_metrics import psnr
+from flightrecon.metric_defs import PSNR_MAX_DB, mean_metrics
 from flightrecon.scene.free_space import room_free_space
 from flightrecon.scene.procedural import make_scene
 from flightrecon.scene.replica_ply import write_replica_ply
@@ -63,6 +69,36 @@ def _holey_room(hole: bool = True, ceiling: bool = False) -> Scene:
     mesh = trimesh.util.concatenate(parts)
     mesh.merge_vertices()
     return Scene("holey_room", np.asarray(mesh.vertices), np.asarray(mesh.faces, np.int64))
+
+
+def test_zero_error_scores_the_psnr_cap_and_other_errors_are_unchanged():
+    img = torch.rand(12, 16, 3, generator=torch.Generator().manual_seed(0))
+    assert float(psnr(img, img)) == pytest.approx(PSNR_MAX_DB, abs=1e-4) == 60.0
+    assert math.isfinite(float(psnr(img, img)))
+    assert float(psnr(img, img + 1e-5)) == pytest.approx(60.0, abs=1e-4)  # mse 1e-10: past the cap, capped
+    assert float(psnr(img * 0, img * 0 + 0.01)) == pytest.approx(40.0, abs=1e-4)  # mse 1e-4: 40 dB, as before
+    m = view_metrics(img, torch.full((12, 16, 1), 2.0), torch.ones(12, 16, 1), img, torch.full((12, 16, 1), 2.0))
+    assert m["psnr"] == pytest.approx(60.0, abs=1e-4) and m["psnr_covered"] == pytest.approx(60.0, abs=1e-4)
+
+
+def test_a_view_empty_in_render_and_ground_truth_is_scored_as_documented():
+    # nothing rendered, nothing in the ground truth (black, no depth): zero error scores the cap,
+    # SSIM of two equal flat images is 1, depth L1 has no valid pixel to differ on (0 cm), and the
+    # covered metrics are undefined (NaN), which the mean leaves out
+    H_, W_ = 30, 40
+    zero3, zero1 = torch.zeros(H_, W_, 3), torch.zeros(H_, W_, 1)
+    empty = view_metrics(zero3, zero1, zero1, zero3, zero1)
+    assert empty["psnr"] == pytest.approx(60.0, abs=1e-4)
+    assert empty["ssim"] == pytest.approx(1.0, abs=1e-9)
+    assert empty["depth_l1_cm"] == 0.0 and empty["covered_share"] == 0.0
+    assert all(math.isnan(empty[k]) for k in ("psnr_covered", "ssim_covered", "depth_l1_cm_covered"))
+    # a second view off by 0.1 everywhere: 20 dB; the mean is (60 + 20) / 2, finite
+    gt = torch.full((H_, W_, 3), 0.5)
+    other = view_metrics(gt + 0.1, zero1 + 2.0, zero1 + 1.0, gt, zero1 + 2.0)
+    assert other["psnr"] == pytest.approx(20.0, abs=1e-4) == other["psnr_covered"]
+    mean = mean_metrics([empty, other])
+    assert mean["psnr"] == pytest.approx(40.0, abs=1e-4) and mean["psnr_covered"] == pytest.approx(20.0, abs=1e-4)
+    assert mean["psnr_covered_views"] == 1 and mean["views"] == 2
 
 
 def test_the_free_space_stays_in_a_room_with_a_wall_hole_a_floor_hole_and_no_ceiling():

@@ -28,7 +28,7 @@ import torch
 from flightrecon.config import ScenarioConfig
 from flightrecon.evaluation.visible_surface import FreeSpace, room_free_space
 from flightrecon.geometry import camera_pose
-from flightrecon.mapping.image_metrics import depth_l1, psnr, ssim_map
+from flightrecon.mapping.image_metrics import depth_l1, psnr, psnr_of_mse, ssim_map
 from flightrecon.metric_defs import cm, mean_metrics
 
 _MAX_TRIES = 200
@@ -91,7 +91,8 @@ def _draw(rng: np.random.Generator, box: tuple[np.ndarray, np.ndarray], usable) 
 def view_metrics(color: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor, gt_rgb: torch.Tensor,
                  gt_depth: torch.Tensor) -> dict:
     """PSNR, SSIM and depth L1 (cm) of one rendered view [H,W,k] on all pixels and on covered ones
-    (alpha >= 0.5; '_covered', NaN when none is), and the covered share of the pixels."""
+    (alpha >= 0.5; '_covered', NaN when none is), and the covered share of the pixels. PSNR is at
+    most metric_defs.PSNR_MAX_DB (zero error scores the cap)."""
     covered = alpha >= COVERED_ALPHA
     share = float(covered.float().mean())
     r = SSIM_RADIUS
@@ -101,11 +102,11 @@ def view_metrics(color: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor, 
     nan = math.nan
     if share == 0.0:
         return {**out, "psnr_covered": nan, "ssim_covered": nan, "depth_l1_cm_covered": nan}
-    mse = float(((color - gt_rgb).square() * covered).sum() / (covered.sum() * color.shape[-1]))
+    mse = ((color - gt_rgb).square() * covered).sum() / (covered.sum() * color.shape[-1])
     inner = covered[r:-r, r:-r].expand(-1, -1, color.shape[-1])
     valid = torch.isfinite(gt_depth) & (gt_depth > 0) & covered
     dl = (depth - torch.nan_to_num(gt_depth)).abs()[valid]
-    return {**out, "psnr_covered": 10.0 * math.log10(1.0 / mse) if mse > 0 else math.inf,
+    return {**out, "psnr_covered": float(psnr_of_mse(mse)),
             "ssim_covered": float(smap[inner].mean()) if inner.any() else nan,
             "depth_l1_cm_covered": cm(dl.mean()) if len(dl) else nan}
 
