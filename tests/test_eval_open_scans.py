@@ -1,9 +1,9 @@
 """Evaluation that holds on open and holey scans: the room's free space does not leak through a hole
-in a wall, an open ceiling or a missing floor patch; no view, however empty or perfect, makes a
-mean infinite. Scans are built here: a hand-made room with single-sheet walls (its volume and areas
-known by hand) and a procedural room stripped to what a scanner sees (inner faces only), its
-ceiling removed, a hole cut in a wall and a patch in its floor, written as a PLY with vertex
-colors."""
+in a wall, an open ceiling or a missing floor patch; evaluation views are kept where their ground
+truth sees surface and the rest are counted; no view, however empty or perfect, makes a mean
+infinite. Scans are built here: a hand-made room with single-sheet walls (its volume and areas
+known by hand) and a procedural room stripped to what a scanner sees (inner faces only), its ceiling
+removed, a hole cut in a wall and a patch in its floor, written as a PLY with vertex colors."""
 
 from __future__ import annotations
 
@@ -16,10 +16,13 @@ import torch
 import trimesh
 
 from flightrecon.cli import main as cli_main
-from flightrecon.evaluation.views import view_metrics
+from flightrecon.config import load_config
+from flightrecon.evaluation.views import VALID_DEPTH_SHARE, evaluation_poses, sees_surface, view_metrics
 from flightrecon.evaluation.visible_surface import visible_surface
 from flightrecon.mapping.image_metrics import psnr
 from flightrecon.metric_defs import PSNR_MAX_DB, mean_metrics
+from flightrecon.render import RenderOutput
+from flightrecon.rig import build_rig
 from flightrecon.scene.free_space import room_free_space
 from flightrecon.scene.procedural import make_scene
 from flightrecon.scene.replica_ply import write_replica_ply
@@ -29,6 +32,8 @@ L, W, H = 4.0, 3.0, 2.5  # the hand-made room, floor at z = 0, centred on the or
 HOLE = 0.6  # side of the square hole in its +x wall, centred at y = 0, z = 1.2
 CORRIDOR = 2.0  # floor scanned beyond the +x wall (through a doorway, say): the scan's box holds it
 FLOOR_HOLE = 0.5  # side of the square hole in its floor, centred at x = y = -1
+TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
+        "mapper.k_new=8", "mapper.k_replay=4", "evaluation.every=1"]
 
 
 def _sheet(center, u, v, cell: float = 0.05) -> trimesh.Trimesh:
@@ -101,6 +106,16 @@ def test_a_view_empty_in_render_and_ground_truth_is_scored_as_documented():
     assert mean["psnr_covered_views"] == 1 and mean["views"] == 2
 
 
+def test_a_view_counts_where_its_ground_truth_has_depth_on_90_percent_of_pixels():
+    assert VALID_DEPTH_SHARE == 0.9
+    depth = np.full((10, 10), 2.0)
+    depth[:1] = 0.0  # a tenth without surface (0: nothing within camera.far)
+    assert sees_surface(depth)
+    depth[1, 0] = np.nan
+    assert not sees_surface(depth)  # 89 of 100
+    assert not sees_surface(np.zeros((10, 10)))
+
+
 def test_the_free_space_stays_in_a_room_with_a_wall_hole_a_floor_hole_and_no_ceiling():
     scene = _holey_room()
     free = room_free_space(scene, np.array([0.0, 0.0, 1.2]))
@@ -159,3 +174,55 @@ def test_scene_info_gives_an_open_scan_a_bounded_free_volume(room_scan, capsys):
     assert 0.7 * box_volume < info["free_volume_m3"] < box_volume  # the room up to its walls' top, less furniture
     assert cli_main(["scene", "info", str(path)]) == 0
     assert "not enclosed" in capsys.readouterr().out
+
+
+class TruthRenderer:
+    """The mapper's `render_view` answered by the simulator's own camera: a map equal to the ground
+    truth, alpha 1 where there is surface."""
+
+    def __init__(self, camera) -> None:
+        self.camera = camera
+
+    def render_view(self, T_wc, K, width, height, outputs=("features", "alpha", "depth")):
+        rgb, depth = self.camera.render(T_wc)
+        t = lambda a: torch.from_numpy(np.asarray(a, np.float32)).reshape(1, height, width, -1)  # noqa: E731
+        return RenderOutput(features=t(rgb), alpha=t(depth > 0), depth=t(depth))
+
+
+def test_evaluation_of_a_holey_open_scan_keeps_views_that_see_surface(room_scan):
+    path, _ = room_scan
+    cfg = load_config("demo", TINY + [f"scene.path={path}", "evaluation.views=16"])
+    rig = build_rig(cfg)
+    ev = rig.evaluation_set()
+    # looking up in a scan without a ceiling sees sky: such views are drawn again, else dropped and counted
+    assert ev.dropped >= 1 and len(ev.poses) + ev.dropped == 16
+    assert all(sees_surface(d[..., 0].numpy()) for d in ev.depth)
+    first_draws = evaluation_poses(rig.scene, rig.start, rig.truth, rig.workspace, cfg)
+    assert not all(sees_surface(rig.camera.render(T)[1]) for T in first_draws)  # the rule had work to do
+    m = ev.evaluate(TruthRenderer(rig.camera))
+    assert m["views"] == len(ev.poses) and m["views_dropped"] == ev.dropped
+    numeric = {k: v for k, v in m.items() if isinstance(v, float)}
+    assert all(math.isfinite(v) for v in numeric.values()), numeric
+    # the ground truth as the map: zero error on every view, so every PSNR is the cap
+    assert m["psnr"] == pytest.approx(60.0, abs=1e-4) and m["psnr_covered"] == pytest.approx(60.0, abs=1e-4)
+    assert m["depth_l1_cm"] == pytest.approx(0.0, abs=1e-6) and m["covered_share"] >= VALID_DEPTH_SHARE
+
+
+@pytest.mark.slow
+def test_a_flight_in_a_holey_open_scan_reports_finite_metrics_and_dropped_views(room_scan, tmp_path, capsys):
+    from flightrecon.experiments.run_eval import evaluate_run
+
+    path, _ = room_scan
+    run = tmp_path / "run"
+    sets = TINY + [f"scene.path={path}", "evaluation.views=16", "budget.frames=4", "budget.initial_views=2",
+                   "metrics.sample_points=20000"]
+    assert cli_main(["fly", "demo", "--quiet", "--no-record", "--out", str(run),
+                     *[a for s in sets for a in ("--set", s)]]) == 0
+    summary = capsys.readouterr().out
+    flown = json.loads((run / "metrics.json").read_text())["eval"]
+    assert flown["views_dropped"] >= 1 and flown["views"] + flown["views_dropped"] == 16
+    assert f"{flown['views']} evaluation views ({flown['views_dropped']} left out" in summary
+    scored = evaluate_run(run)
+    assert json.loads((run / "eval.json").read_text())["views_dropped"] == flown["views_dropped"]
+    for key in ("psnr", "ssim", "depth_l1_cm", "accuracy_cm", "completion_cm", "chamfer_cm", "fscore"):
+        assert math.isfinite(scored[key]), (key, scored[key])

@@ -97,4 +97,4 @@ def test_a_2cm_depth_offset_reads_2_cm_in_the_mapper_and_the_run_evaluation(rend
     assert run["depth_l1_cm_covered"] == pytest.approx(2.0, abs=1e-3) and run["views"] == 1
     # the color is the map's own: zero error scores the cap, not infinity
     assert held_out["psnr"] == pytest.approx(PSNR_MAX_DB) and run["psnr"] == pytest.approx(PSNR_MAX_DB)
-    assert run["psnr_covered"] == pytest.approx(PSNR_MAX_DB)
+    assert run["psnr_covered"] == pytest.approx(PSNR_MAX_DB) and run["views_dropped"] == 0
