@@ -131,7 +131,9 @@ def view_metrics(color: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor, 
                  gt_depth: torch.Tensor) -> dict:
     """PSNR, SSIM and depth L1 (cm) of one rendered view [H,W,k] on all pixels and on covered ones
     (alpha >= 0.5; '_covered', NaN when none is), and the covered share of the pixels. PSNR is at
-    most metric_defs.PSNR_MAX_DB (zero error scores the cap)."""
+    most metric_defs.PSNR_MAX_DB (zero error scores the cap). A view empty in both render and ground
+    truth scores the cap, SSIM 1 and depth L1 0 (no valid pixel): it says nothing of the map, which
+    is why an evaluation set keeps only views that see surface (`sees_surface`)."""
     covered = alpha >= COVERED_ALPHA
     share = float(covered.float().mean())
     r = SSIM_RADIUS
