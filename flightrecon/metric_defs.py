@@ -69,6 +69,14 @@ METRICS: dict[str, Metric] = {m.key: m for m in (
 
 SUMMARY = ("psnr", "ssim", "depth_l1_cm")  # what a command prints when a map is done
 
+PSNR_MAX_DB = 60.0
+"""The PSNR of a view with zero error (the render equals the ground truth, both empty included),
+and the most any view scores: an uncapped zero-error view is infinitely good and makes the mean
+over views infinite. Per-view PSNR, on all pixels and on covered ones, is capped here before views
+are averaged, so means keep their meaning (a mean of per-view dB) and results of maps that never
+reach the cap are unchanged; 60 dB is past what 8-bit ground truth can tell apart (its rounding
+alone is ~59 dB)."""
+
 
 def select(*keys: str) -> tuple[Metric, ...]:
     """The metrics of `keys`, in order: a KeyError names a key without a definition."""
@@ -98,8 +106,9 @@ def mean_metrics(rows: list[dict]) -> dict:
     covered pixel, a normal error without a valid normal), so the view is left out of that mean
     rather than making it NaN: the all-pixel metrics already charge what the map misses there, and
     one empty view would otherwise erase the mean over all the others. Where views were left out,
-    `<key>_views` gives how many the mean is over; NaN when none defines it. Non-numeric entries
-    (a frame's name) are not averaged."""
+    `<key>_views` gives how many the mean is over; NaN when none defines it. No per-view value is
+    infinite (PSNR stops at PSNR_MAX_DB), so no mean is. Non-numeric entries (a frame's name) are
+    not averaged."""
     out: dict = {}
     for k, v in (rows[0].items() if rows else ()):
         if not isinstance(v, numbers.Real) or isinstance(v, bool):

@@ -5,7 +5,6 @@ run evaluation alike."""
 
 import math
 
-import numpy as np
 import pytest
 import torch
 
@@ -15,7 +14,7 @@ from flightrecon.experiments import report, run_eval
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.mapping.offline import evaluate_view
-from flightrecon.metric_defs import METRICS, mean_metrics, select, summary_line
+from flightrecon.metric_defs import METRICS, PSNR_MAX_DB, mean_metrics, select, summary_line
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world
@@ -96,4 +95,6 @@ def test_a_2cm_depth_offset_reads_2_cm_in_the_mapper_and_the_run_evaluation(rend
     assert held_out["depth_l1_cm"] == pytest.approx(2.0, abs=1e-3)
     assert run["depth_l1_cm"] == pytest.approx(2.0, abs=1e-3)
     assert run["depth_l1_cm_covered"] == pytest.approx(2.0, abs=1e-3) and run["views"] == 1
-    assert np.isinf(held_out["psnr"]) and np.isinf(run["psnr"])  # the color is the map's own
+    # the color is the map's own: zero error scores the cap, not infinity
+    assert held_out["psnr"] == pytest.approx(PSNR_MAX_DB) and run["psnr"] == pytest.approx(PSNR_MAX_DB)
+    assert run["psnr_covered"] == pytest.approx(PSNR_MAX_DB) and run["views_dropped"] == 0

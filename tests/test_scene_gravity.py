@@ -140,9 +140,9 @@ def test_scene_info_prints_the_estimate(files, capsys):
     assert cli_main(["scene", "info", str(path)]) == 0  # auto is the default
     line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("up axis"))
     assert "auto: file (" in line and "-> world z, confident (floor" in line and "spread" in line
-    info = summary(load_scene(path, up_axis="auto"), with_free_space=False)
+    info = summary(load_scene(path, up_axis="auto"))
     assert info["up_axis_mode"] == "auto" and info["up_estimate"]["confidence"] == "confident"
     assert np.degrees(np.arccos(np.dot(info["up_vector"], R @ [0.0, 0.0, 1.0]))) < 0.1
     assert abs(info["floor_z"]) < 0.02  # the floor found in the leveled geometry
     json.dumps(info)
-    assert _up_axis_line(summary(load_scene(path, up_axis="z"), with_free_space=False)) == "file z -> world z"
+    assert _up_axis_line(summary(load_scene(path, up_axis="z"))) == "file z -> world z"

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from flightrecon.errors import SceneError
+from flightrecon.planning.poses import start_position
 from flightrecon.scene import load_scene, scene_from_config
 from flightrecon.scene.procedural import SCENE_NAMES, make_scene
 from flightrecon.scene.source import write_scene_dir
@@ -48,7 +49,7 @@ def test_every_named_scene_is_a_closed_furnished_room(name):
 def test_scene_is_enclosed(name):
     """Empty space inside is not connected to the outside: depth can have no holes to it."""
     s = make_scene(name)
-    fs = free_space(s, pitch=0.1)
+    fs = free_space(s, start_position(s, 1.2), pitch=0.1)
     (x0, y0, z0), (x1, y1, z1) = s.meta["room_box"]
     assert fs["enclosed"]
     assert 0.5 * (x1 - x0) * (y1 - y0) * (z1 - z0) < fs["free_volume_m3"] < (x1 - x0) * (y1 - y0) * (z1 - z0)

@@ -55,5 +55,6 @@ def _write_views(args: argparse.Namespace) -> int:
         ev = evaluation_views_for(cfg)
         path = save_views(views_path(scene, args.out), scene, ev.poses, ev.K, ev.width, ev.height,
                           cfg.evaluation.seed)
-        print(f"{path}: {len(ev.poses)} views")
+        print(f"{path}: {len(ev.poses)} views" + (f" ({ev.dropped} left out: no pose of theirs saw enough "
+                                                  "surface)" if ev.dropped else ""))
     return 0

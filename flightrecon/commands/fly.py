@@ -74,10 +74,17 @@ def _run_active(cfg: ScenarioConfig | None, out: Path, progress: bool, args: arg
         from flightrecon.mapping.ply import save_map
 
         save_map(mission.mapper.map, out / "map_3dgs.ply", for_3dgs=True)
-    print(f"{m['frames']} frames, {m['splats']} splats ({m['map_mb']:.1f} MB); evaluation views: "
+    print(f"{m['frames']} frames, {m['splats']} splats ({m['map_mb']:.1f} MB); {_views(m['eval'])}: "
           f"{summary_line(m['eval'])}; flew {m['flight_distance_m']:.1f} m, {m['recoveries']} recoveries, "
           f"{m['contacts']} contacts -> {out}")
     return 0
+
+
+def _views(ev: dict) -> str:
+    """'evaluation views', with how many counted where some saw too little surface to count."""
+    if not ev["views_dropped"]:
+        return "evaluation views"
+    return f"{ev['views']} evaluation views ({ev['views_dropped']} left out: no pose of theirs saw enough surface)"
 
 
 def _run_survey(cfg: ScenarioConfig, out: Path, progress) -> int:

@@ -77,12 +77,13 @@ def _make(args) -> int:
 
 def _info(args) -> int:
     from flightrecon.config import load_config
-    from flightrecon.planning.poses import workspace_of
+    from flightrecon.planning.poses import start_position, workspace_of
+    from flightrecon.scene.free_space import HOLE_RADIUS
     from flightrecon.scene.stats import summary
 
     scene = _load(args)
-    s = summary(scene)
     cfg = load_config(None, [] if args.max_height is None else [f"planner.max_height={args.max_height}"])
+    s = summary(scene, start_position(scene, cfg.sim.takeoff_height))
     work = workspace_of(scene, cfg.planner.max_height)
     s["workspace_min"], s["workspace_max"] = ([round(float(x), 3) for x in b] for b in work)
     s["required_clearance"] = cfg.required_clearance
@@ -99,10 +100,13 @@ def _info(args) -> int:
     print(f"appearance   {s['appearance']}" + (f" {s['texture_size'][0]}x{s['texture_size'][1]}"
                                                if "texture_size" in s else "")
           + (", normals" if s["normals"] else ""))
-    if s["enclosed"]:
-        print(f"free volume  {s['free_volume_m3']:.2f} m^3 (enclosed)")
+    if "free_space_error" in s:
+        print(f"free volume  unknown: {s['free_space_error']}")
+    elif s["enclosed"]:
+        print(f"free volume  {s['free_volume_m3']:.2f} m^3 around the take-off point (enclosed)")
     else:
-        print("free volume  none enclosed: the surface is open to the outside")
+        print(f"free volume  {s['free_volume_m3']:.2f} m^3 around the take-off point, not enclosed: the surface is "
+              f"open, so the room ends at the scan's bounds and holes up to {2 * HOLE_RADIUS:.1f} m across are closed")
     if "free_box" in s:
         print(f"free box     {s['free_box']}  (take-off column kept clear)")
     ceiling = (f"{s['ceiling_z']:.3f}" if s["ceiling_z"] is not None

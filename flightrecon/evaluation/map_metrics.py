@@ -25,7 +25,7 @@ from flightrecon.evaluation.views import EvaluationSet
 from flightrecon.geometry import camera_pose, pixel_rays
 from flightrecon.mapping.losses import normals_from_depth
 from flightrecon.mapping.store import GaussianMap
-from flightrecon.metric_defs import cm, mean_metrics
+from flightrecon.metric_defs import cm
 from flightrecon.render import RenderOutput, render
 from flightrecon.scene.surface_distance import SurfaceDistance
 
@@ -129,7 +129,7 @@ def evaluate_map(source, cfg: ScenarioConfig, truth: EvaluationTruth,
     geo = surface_metrics(mesh, truth.surface, truth.surface_points, m.sample_points, m.fscore_threshold)
     metrics = {
         "lpips": "n/a",  # replaced by the mean where LPIPS was computed
-        **mean_metrics(per_view),
+        **ev.aggregate(per_view),
         "lpips_note": lpips.reason if lpips is not None else "not computed",
         "accuracy_cm": cm(geo["accuracy"]), "completion_cm": cm(geo["completion"]),
         "chamfer_cm": cm(geo["chamfer"]), "precision": geo["precision"], "recall": geo["recall"],

@@ -5,9 +5,11 @@ must not count surface no camera in the room could ever see: the outer faces of 
 the bottom of a box standing on the floor, faces inside closed furniture, the second copy of a
 doubled face behind its twin. A surface point is visible from the free space exactly when the free
 space reaches it, so the test is local: the room's free space is the connected empty region of the
-voxelized surface that holds the take-off point, and a point is visible when the voxel a little
-off the surface along its face normal (either side: scans wind faces inconsistently) belongs to it.
-Exact up to the voxel: gaps narrower than about one voxel count as closed.
+voxelized surface that holds the take-off point (flightrecon.scene.free_space; in an open scan,
+bounded by its extent and with its holes closed, so the outer side of a holey wall stays hidden),
+and a point is visible when the voxel a little off the surface along its face normal (either side:
+scans wind faces inconsistently) belongs to it. Exact up to the voxel: gaps narrower than about one
+voxel count as closed.
 """
 
 from __future__ import annotations
@@ -16,13 +18,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
-from scipy import ndimage
 
-from flightrecon.scene.collision import surface_voxels
+from flightrecon.scene.free_space import FreeSpace, room_free_space
 from flightrecon.scene.types import Scene
 
-PITCH = 0.03  # m, voxel of the free-space test
 OFFSET = 1.5  # voxels off the surface at which the free space is probed
+
+# the surface is visible from the room's free space: callers take both from here
+__all__ = ["FreeSpace", "VisibleSurface", "room_free_space", "visible_surface"]
 
 
 @dataclass(frozen=True)
@@ -30,34 +33,6 @@ class VisibleSurface:
     points: np.ndarray  # (M, 3) area-uniform samples of the visible surface
     visible_area_m2: float
     total_area_m2: float
-
-
-@dataclass(frozen=True)
-class FreeSpace:
-    """The room's free space: the empty voxels connected to the take-off point."""
-
-    grid: np.ndarray  # (X, Y, Z) bool
-    origin: np.ndarray  # (3,) corner of voxel (0, 0, 0)
-    pitch: float
-
-    def contains(self, points: np.ndarray) -> np.ndarray:
-        """(N,) True where a point (N, 3) lies in a free voxel of the room."""
-        idx = np.floor((np.atleast_2d(points) - self.origin) / self.pitch).astype(np.int64)
-        inside = ((idx >= 0) & (idx < self.grid.shape)).all(axis=1)
-        out = np.zeros(len(idx), bool)
-        out[inside] = self.grid[idx[inside, 0], idx[inside, 1], idx[inside, 2]]
-        return out
-
-
-def room_free_space(scene: Scene, seed_point: np.ndarray, pitch: float = PITCH) -> FreeSpace:
-    """The empty voxels of the voxelized surface connected to `seed_point` (the take-off point)."""
-    occ, origin = surface_voxels(scene, pitch)
-    labels, _ = ndimage.label(~occ)
-    idx = np.floor((np.asarray(seed_point, float) - origin) / pitch).astype(np.int64)
-    if (idx < 0).any() or (idx >= occ.shape).any() or labels[tuple(idx)] == 0:
-        raise ValueError(f"the take-off point {np.round(seed_point, 3).tolist()} is not in the free space "
-                         f"of scene '{scene.name}'")
-    return FreeSpace(labels == labels[tuple(idx)], origin, pitch)
 
 
 def visible_surface(scene: Scene, free: FreeSpace, count: int, seed: int = 0) -> VisibleSurface:

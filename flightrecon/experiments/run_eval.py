@@ -44,7 +44,7 @@ def evaluation_truth_for(cfg: ScenarioConfig) -> EvaluationTruth:
     views = rig.evaluation_set(free)
     visible = visible_surface(rig.scene, free, cfg.metrics.sample_points)
     size = cfg.camera.height
-    return EvaluationTruth(views, fusion_poses(views.poses, grid_size(len(views.poses)) ** 2),
+    return EvaluationTruth(views, fusion_poses(views.poses, grid_size(cfg.evaluation.views) ** 2),
                            intrinsics(size, size, 90.0), size, SurfaceDistance(rig.scene.trimesh), visible.points,
                            visible.visible_area_m2, visible.total_area_m2)
 

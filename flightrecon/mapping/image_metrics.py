@@ -1,4 +1,5 @@
-"""Image metrics shared by training losses and evaluation: PSNR, SSIM, masked depth L1.
+"""Image metrics shared by training losses and evaluation: PSNR (capped, metric_defs.PSNR_MAX_DB),
+SSIM, masked depth L1.
 
 SSIM follows Wang et al. with an 11-tap Gaussian window (sigma 1.5) evaluated only where the window
 fits inside the image ("valid" convolution), which is exactly what scikit-image's
@@ -13,6 +14,7 @@ import functools
 import torch
 import torch.nn.functional as F
 
+from flightrecon.metric_defs import PSNR_MAX_DB
 from flightrecon.render import load_extension
 
 _C1 = 0.01**2
@@ -120,9 +122,14 @@ def ssim(a: torch.Tensor, b: torch.Tensor, sigma: float = 1.5, radius: int = 5) 
 
 
 def psnr(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """PSNR in dB of [..., H, W, C] images with data range 1."""
-    mse = (a - b).square().flatten(-3).mean(-1)
-    return 10.0 * torch.log10(1.0 / mse)
+    """PSNR in dB of [..., H, W, C] images with data range 1 (`psnr_of_mse`)."""
+    return psnr_of_mse((a - b).square().flatten(-3).mean(-1))
+
+
+def psnr_of_mse(mse: torch.Tensor) -> torch.Tensor:
+    """PSNR in dB of a mean squared error at data range 1, at most PSNR_MAX_DB (zero error is not
+    infinitely good: see metric_defs)."""
+    return 10.0 * torch.log10(1.0 / mse.clamp_min(10.0 ** (-PSNR_MAX_DB / 10.0)))
 
 
 def depth_l1(depth: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:

@@ -1,34 +1,27 @@
 """What a user wants to know about a scene file: counts, bounds, appearance, and its free volume.
 
-Free volume comes from the surface voxels (`scene.collision`): empty voxels connected to each
-other form regions; a region touching the grid border is outside (or leaks to it through a hole).
-The largest enclosed region is the room's free space.
+Free volume is the room's free space around the take-off point (`scene.free_space`, the space the
+evaluation uses, at a coarser voxel): enclosed by the surface, or else bounded by the scan's extent
+with its holes closed.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy import ndimage
 
-from flightrecon.scene.collision import surface_voxels
+from flightrecon.scene.free_space import room_free_space
 from flightrecon.scene.levels import scene_levels
 from flightrecon.scene.types import Scene
 
 
-def free_space(scene: Scene, pitch: float = 0.1) -> dict:
-    """Volume (m^3) of the largest empty region enclosed by the surface, and whether one exists."""
-    occ, _ = surface_voxels(scene, pitch)
-    labels, n = ndimage.label(~occ)
-    if n == 0:
-        return {"free_volume_m3": 0.0, "enclosed": False}
-    border = np.unique(np.concatenate([labels[0].ravel(), labels[-1].ravel(), labels[:, 0].ravel(),
-                                       labels[:, -1].ravel(), labels[:, :, 0].ravel(), labels[:, :, -1].ravel()]))
-    sizes = np.bincount(labels.ravel(), minlength=n + 1)
-    sizes[0] = 0
-    sizes[border] = 0
-    if sizes.max() == 0:
-        return {"free_volume_m3": 0.0, "enclosed": False}
-    return {"free_volume_m3": float(sizes.max() * pitch ** 3), "enclosed": True}
+def free_space(scene: Scene, takeoff: np.ndarray, pitch: float = 0.1) -> dict:
+    """Volume (m^3) of the room's free space around `takeoff`, whether the surface encloses it, and
+    `free_space_error` instead where the take-off point is not free."""
+    try:
+        free = room_free_space(scene, takeoff, pitch)
+    except ValueError as exc:
+        return {"free_volume_m3": None, "enclosed": False, "free_space_error": str(exc)}
+    return {"free_volume_m3": round(free.volume_m3, 3), "enclosed": free.enclosed}
 
 
 def _up_axis(scene: Scene) -> dict:
@@ -42,9 +35,9 @@ def _up_axis(scene: Scene) -> dict:
             "up_estimate": up.get("estimate")}
 
 
-def summary(scene: Scene, with_free_space: bool = True) -> dict:
+def summary(scene: Scene, takeoff: np.ndarray | None = None) -> dict:
     """Counts, bounds (m), size, up axis of the file (and how it was found), appearance, floor and
-    ceiling heights (None: no ceiling) and (optionally) free volume."""
+    ceiling heights (None: no ceiling) and, given the take-off point, the free volume around it."""
     lo, hi = scene.bounds
     out = {
         "name": scene.name,
@@ -70,6 +63,6 @@ def summary(scene: Scene, with_free_space: bool = True) -> dict:
     for key in ("kind", "free_box", "spawn"):
         if key in scene.meta:
             out[key] = scene.meta[key]
-    if with_free_space:
-        out.update(free_space(scene))
+    if takeoff is not None:
+        out.update(free_space(scene, takeoff))
     return out
