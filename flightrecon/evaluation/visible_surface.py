@@ -49,15 +49,36 @@ class FreeSpace:
         return out
 
 
-def room_free_space(scene: Scene, seed_point: np.ndarray, pitch: float = PITCH) -> FreeSpace:
-    """The empty voxels of the voxelized surface connected to `seed_point` (the take-off point)."""
+def _free_regions(scene: Scene, pitch: float) -> tuple[np.ndarray, np.ndarray]:
+    """Connected empty regions of the voxelized surface: labels (X, Y, Z), 0 on the surface, and the
+    grid's origin corner."""
     occ, origin = surface_voxels(scene, pitch)
     labels, _ = ndimage.label(~occ)
+    return labels, origin
+
+
+def room_free_space(scene: Scene, seed_point: np.ndarray, pitch: float = PITCH) -> FreeSpace:
+    """The empty voxels of the voxelized surface connected to `seed_point` (the take-off point)."""
+    labels, origin = _free_regions(scene, pitch)
     idx = np.floor((np.asarray(seed_point, float) - origin) / pitch).astype(np.int64)
-    if (idx < 0).any() or (idx >= occ.shape).any() or labels[tuple(idx)] == 0:
+    if (idx < 0).any() or (idx >= labels.shape).any() or labels[tuple(idx)] == 0:
         raise ValueError(f"the take-off point {np.round(seed_point, 3).tolist()} is not in the free space "
                          f"of scene '{scene.name}'")
     return FreeSpace(labels == labels[tuple(idx)], origin, pitch)
+
+
+def largest_free_space(scene: Scene, box: np.ndarray, pitch: float = PITCH) -> FreeSpace:
+    """The connected empty region that fills most of `box` (2, 3), the room's box: the room's free
+    space found without a point in it, to choose the take-off point by (the default one may lie in
+    furniture or outside the walls). Equal to `room_free_space` seeded anywhere inside it."""
+    labels, origin = _free_regions(scene, pitch)
+    lo = np.clip(np.floor((box[0] - origin) / pitch).astype(np.int64), 0, labels.shape)
+    hi = np.clip(np.ceil((box[1] - origin) / pitch).astype(np.int64), 0, labels.shape)
+    inside = labels[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]].ravel()
+    counts = np.bincount(inside[inside > 0], minlength=1)
+    if counts.max(initial=0) == 0:
+        return FreeSpace(np.zeros(labels.shape, bool), origin, pitch)
+    return FreeSpace(labels == int(np.argmax(counts)), origin, pitch)
 
 
 def visible_surface(scene: Scene, free: FreeSpace, count: int, seed: int = 0) -> VisibleSurface:
