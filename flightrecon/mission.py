@@ -38,7 +38,7 @@ from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import DatasetWriter, write_trajectory_csv
 from flightrecon.errors import ConfigError, DataError, FlightReconError
 from flightrecon.evaluation.coverage import SurfaceCoverage
-from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
+from flightrecon.evaluation.visible_surface import visible_surface
 from flightrecon.fileio import write_json, write_text
 from flightrecon.geometry import camera_pose_from_body, make_pose, rot_z
 from flightrecon.mapping.mapper import OnlineMapper
@@ -98,8 +98,8 @@ class Mission:
         self.evaluation = rig.evaluation_set()
         self.state = MissionState()
         if cfg.output.diagnose:
-            free = room_free_space(rig.scene, rig.start)
-            self.state.coverage = SurfaceCoverage(visible_surface(rig.scene, free, DIAGNOSIS_SURFACE_SAMPLES).points)
+            visible = visible_surface(rig.scene, rig.free, DIAGNOSIS_SURFACE_SAMPLES)
+            self.state.coverage = SurfaceCoverage(visible.points)
         self.live_viewer = False  # `fly --rerun`: stream the recording to a viewer as well
         self.allow_code_change = False  # resume a run whose earlier frames ran other code (recorded)
         self.recorder = NullRecorder()  # the recording, opened by the first step of this process
@@ -186,9 +186,10 @@ class Mission:
 
     # ------------------------------------------------------------------ one step
     def _take_off(self) -> None:
-        ground = self.rig.start.copy()
-        ground[2] = self.rig.start[2] - self.cfg.sim.takeoff_height + self.cfg.drone.body_radius * 0.5
-        self.flight.start(ground, 0.0)
+        """Climb from the floor to the take-off point (moved off the default when that is unsafe: said)."""
+        if self.rig.takeoff.moved:
+            self._event(self.rig.takeoff.note, logging.WARNING)
+        self.flight.start(self.rig.takeoff.ground, 0.0)
         self.flight.go_to(self.rig.start, 0.0)
         self.flight.wait_until_arrived()
 

@@ -1,7 +1,8 @@
 """The scripted survey flight: take off, fly a loop of waypoints through the room, capture RGB-D.
 
-Waypoints lie on rays from the take-off column (scene meta 'spawn', kept free of furniture by the
-procedural scenes; the room center otherwise) at the take-off height, one ray per heading. Each ray
+Waypoints lie on rays from the take-off point (above scene meta 'spawn', kept free of furniture by the
+procedural scenes, or the room center; the nearest safe point when that one is not: takeoff.py) at
+its height, one ray per heading. Each ray
 is walked outward on the scene's distance field and stops where the drone's body radius plus the
 planner's safety margin would no longer fit, or at OUTER_SHARE of the way to the walls, so the straight leg from
 the center to every waypoint is clear. Consecutive waypoints are joined by a straight leg when that
@@ -30,14 +31,13 @@ from flightrecon.dataset import DatasetWriter
 from flightrecon.errors import DataError, SceneError
 from flightrecon.fileio import write_text
 from flightrecon.planning.distance_field import DistanceField
-from flightrecon.rig import build_rig, takeoff_point
+from flightrecon.rig import build_rig
 from flightrecon.scene.types import Scene
 
 N_RAYS = 8
 WALL_KEEP = 0.4  # waypoints stay this much farther from the room box than the clearance demands (m)
 OUTER_SHARE = 0.65  # of the way to the walls: outward views keep some context, not just a wall
 MIN_RADIUS = 0.3  # rays that cannot go this far from the center get no waypoint
-START_ABOVE_FLOOR = 0.05  # the drone starts resting just above the floor
 HEADINGS = 8  # captures per waypoint, equally spaced in yaw starting outward
 
 
@@ -61,14 +61,11 @@ def _clear(field: DistanceField, a: np.ndarray, b: np.ndarray, required: float) 
     return bool(field.distance(pts).min() >= required)
 
 
-def survey_waypoints(scene: Scene, cfg: ScenarioConfig, field: DistanceField,
+def survey_waypoints(scene: Scene, cfg: ScenarioConfig, field: DistanceField, center: np.ndarray,
                      headings: int = HEADINGS) -> list[Waypoint]:
-    """The loop of capture points (see the module doc), starting and ending near the center."""
-    center = takeoff_point(scene, cfg)
+    """The loop of capture points (see the module doc), starting and ending over `center`, the
+    take-off point (rig.takeoff: its clearance is checked there)."""
     required = cfg.required_clearance
-    if field.distance(center[None])[0] < required:
-        raise SceneError(f"scene '{scene.name}': the take-off point {np.round(center, 2).tolist()} has less than "
-                         f"{required:.2f} m clearance (drone.body_radius + planner.safety_margin)")
     room = np.asarray(scene.meta.get("room_box", scene.bounds), float)
     step = 0.5 * field.voxel_size
     points = []
@@ -120,16 +117,16 @@ def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str
     progress(f"scene {cfg.scene.name}: building the world and distance field")
     rig = build_rig(cfg, truth=False)
     scene, camera, center = rig.scene, rig.camera, rig.start
+    if rig.takeoff.moved:
+        progress(rig.takeoff.note)
     field = scene_distance_field(scene, cfg, center)
-    route = survey_waypoints(scene, cfg, field, headings)
+    route = survey_waypoints(scene, cfg, field, center, headings)
     n_frames = sum(len(w.yaws) for w in route)
     c = cfg.camera
     flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(scene.trimesh, cfg.drone.body_radius))
     writer = DatasetWriter(out_dir, camera.K, c.width, c.height)
-    start = center.copy()
-    start[2] = float(scene.meta.get("floor_z", scene.bounds[0, 2])) + START_ABOVE_FLOOR + 0.03
-    flight.start(start, 0.0)
-    progress(f"take-off to {cfg.sim.takeoff_height:.2f} m; {len(route)} waypoints, {n_frames} frames")
+    flight.start(rig.takeoff.ground, 0.0)
+    progress(f"take-off to {np.round(center, 2).tolist()}; {len(route)} waypoints, {n_frames} frames")
     flight.go_to(center, 0.0)
     unsettled = 0 if flight.wait_until_arrived() else 1
     airborne = len(flight.log)  # clearance is reported from here: on the floor it is negative by design

@@ -25,7 +25,8 @@ from flightrecon.scene.types import Scene
 def room0():
     cfg = load_config("sweep_cpu", ["scene.name=room0"])
     scene = procedural_scene("room0", 0)
-    workspace, start = flight_region(scene, cfg)
+    workspace, takeoff = flight_region(scene, cfg)
+    start = takeoff.hover
     truth = truth_field(scene, cfg, workspace)
     return cfg, scene, workspace, start, truth
 
