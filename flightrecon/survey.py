@@ -14,7 +14,9 @@ seen by its neighbours, except near the top and bottom of its central columns: a
 by 45 degrees sees a point at elevation e only where tan(e) <= 0.53 (4:3 frames), the held-out one up to
 0.75, so nearby ceiling and floor there count on other waypoints, and 2.5% of office0's frame 44 is seen
 by no other frame; the old 2 headings, outward and back, left held-out views largely unseen). The
-frames go to an RGB-D dataset (flightrecon.dataset) with the flown trajectory.
+frames go to an RGB-D dataset (flightrecon.dataset) with the flown trajectory. A contact with the
+scene after take-off stops the survey with an error (the dataset keeps the frames before it), unless
+sim.on_contact is "continue": then the contacts are counted and listed.
 """
 
 from __future__ import annotations
@@ -111,7 +113,7 @@ def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str
                headings: int = HEADINGS) -> SurveyResult:
     """Fly the survey in `cfg`'s scene and write the dataset to `out_dir` (`headings` captures per waypoint)."""
     from flightrecon.sim.flight import Flight
-    from flightrecon.sim.safety import ClearanceMonitor
+    from flightrecon.sim.safety import ClearanceMonitor, FlightContact
 
     out_dir = Path(out_dir)
     progress(f"scene {cfg.scene.name}: building the world and distance field")
@@ -130,6 +132,8 @@ def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str
     flight.go_to(center, 0.0)
     unsettled = 0 if flight.wait_until_arrived() else 1
     airborne = len(flight.log)  # clearance is reported from here: on the floor it is negative by design
+    flight.stop_on_contact = cfg.sim.on_contact == "stop"
+    i = 0
     try:
         for i, wp in enumerate(route):
             for j, yaw in enumerate(wp.yaws or (None,)):
@@ -144,6 +148,10 @@ def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str
                 progress(f"[{len(writer.frames)}/{n_frames}] waypoint {i + 1}/{len(route)} "
                          f"at {np.round(wp.position, 2).tolist()} yaw {math.degrees(yaw) % 360:.0f} deg, "
                          f"t = {flight.time:.1f} s")
+    except FlightContact as exc:
+        raise FlightContact(f"the survey stopped on its way to waypoint {i + 1}/{len(route)}: {exc}; {out_dir} keeps "
+                            f"the {len(writer.frames)} frames before it. Raise planner.safety_margin, or set "
+                            "sim.on_contact = \"continue\" to fly on and count the contacts", exc.event) from None
     finally:
         camera.close()
         if writer.frames:

@@ -1,4 +1,4 @@
-"""A take-off point that is safe.
+"""A take-off point that is safe, and flights that touch the scene are never a silent success.
 
 Scenes are the procedural room0 with furniture boxes added where the drone would take off; the
 checks measure clearance independently (trimesh's exact closest points) and fly real MuJoCo
@@ -159,7 +159,46 @@ def test_a_flight_from_a_blocked_spawn_takes_off_from_the_safe_point(room, tmp_p
     assert max(abs(x - center[0]), abs(y - center[1])) >= 0.6 + load_config("demo").required_clearance
     assert z < 0.2  # it rested on the floor, then climbed
     metrics = json.loads((run / "metrics.json").read_text())
-    assert metrics["contacts"] == 0
+    assert metrics["contacts"] == 0 and metrics["contact_frames"] == []
     assert "0 contacts" in out and "WARNING" not in err
     assert all("cannot leave its take-off point" not in r.getMessage() for r in caplog.records)
 
+
+def _bar_behind(room: Scene, tmp_path: Path) -> tuple[Scene, list[str]]:
+    """A thin bar across the room 0.3 m behind the take-off point, where the camera has not looked
+    when the only candidate (0.3 m backwards) is flown: the planner takes the unseen space near
+    the drone as free (planner.hover_free_radius), so the drone flies into the bar."""
+    lo, hi = room.bounds
+    center = (lo + hi) / 2
+    scene = furnished(room, [([center[0] - 0.3, center[1], 1.2], [0.04, 3.0, 0.04])], meta={})
+    library = tmp_path / "backwards.toml"
+    library.write_text("[[candidate]]\nforward = -0.3\n")
+    return scene, ["planner.safety_margin=0.0", f"planner.library={library}", "budget.frames=3",
+                   "budget.initial_views=1", "planner.max_vel=0.3"]
+
+
+@pytest.mark.slow
+def test_a_flight_that_touches_the_scene_stops_naming_the_frame(room, tmp_path, capsys):
+    scene, sets = _bar_behind(room, tmp_path)
+    rc, out, err, run = _fly(tmp_path, capsys, scene, "run", *sets)
+    assert rc == 2
+    assert "flightrecon: error: frame 0: the flight stopped: the drone touched the scene: t=" in err, err
+    assert "sim.on_contact" in err and "planner.safety_margin" in err
+    failed = (run / "failed.txt").read_text()
+    assert failed.startswith("frame 0: the flight stopped: the drone touched the scene") and "contact drone_" in failed
+    assert "frame 0: the flight stopped" in (run / "events.log").read_text()
+    assert (run / "frames.csv").is_file() and not (run / "metrics.json").exists()
+
+
+@pytest.mark.slow
+def test_a_flight_told_to_continue_counts_its_contacts_loudly(room, tmp_path, capsys):
+    scene, sets = _bar_behind(room, tmp_path)
+    rc, out, err, run = _fly(tmp_path, capsys, scene, "run", *sets, "sim.on_contact=continue")
+    assert rc == 0, err
+    metrics = json.loads((run / "metrics.json").read_text())
+    n = metrics["contacts"]
+    assert n >= 1 and metrics["contact_frames"][0] == 0
+    assert f"{n} contacts -> {run}" in out
+    assert f"WARNING: the drone touched the scene {n} time(s) (frames {metrics['contact_frames']}" in err
+    assert "frame 0: contact t=" in (run / "events.log").read_text()
+    assert not (run / "failed.txt").exists()
