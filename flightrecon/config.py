@@ -103,6 +103,10 @@ class SimConfig:
     pose_noise_rot_deg: float = option(0.0, 0.0, 30.0)
     takeoff_height: float = option(1.2, 0.2, 5.0, doc="m above the floor")
     divergence_tilt_deg: float = option(80.0, 10.0, 179.0, doc="tilt that stops a flight as diverged")
+    on_contact: str = option("stop", choices=("stop", "continue"), doc="a contact with the scene after take-off: "
+                         "stop ends the flight with an error naming the frame and the contact (the run folder keeps "
+                         "the frames before it, and failed.txt says why); continue flies on, and frames.csv, "
+                         "metrics.json ('contacts', 'contact_frames') and the summary count the contacts")
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from collections import Counter
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -38,7 +39,7 @@ from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import DatasetWriter, write_trajectory_csv
 from flightrecon.errors import ConfigError, DataError, FlightReconError
 from flightrecon.evaluation.coverage import SurfaceCoverage
-from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
+from flightrecon.evaluation.visible_surface import visible_surface
 from flightrecon.fileio import write_json, write_text
 from flightrecon.geometry import camera_pose_from_body, make_pose, rot_z
 from flightrecon.mapping.mapper import OnlineMapper
@@ -49,7 +50,7 @@ from flightrecon.recording import NullRecorder, Stage, open_recorder
 from flightrecon.rig import build_rig
 from flightrecon.sim.flight import Flight, FlightDiverged
 from flightrecon.sim.quadrotor import camera_offset
-from flightrecon.sim.safety import ClearanceMonitor
+from flightrecon.sim.safety import ClearanceMonitor, FlightContact
 
 log = logging.getLogger(__name__)
 
@@ -98,8 +99,8 @@ class Mission:
         self.evaluation = rig.evaluation_set()
         self.state = MissionState()
         if cfg.output.diagnose:
-            free = room_free_space(rig.scene, rig.start)
-            self.state.coverage = SurfaceCoverage(visible_surface(rig.scene, free, DIAGNOSIS_SURFACE_SAMPLES).points)
+            visible = visible_surface(rig.scene, rig.free, DIAGNOSIS_SURFACE_SAMPLES)
+            self.state.coverage = SurfaceCoverage(visible.points)
         self.live_viewer = False  # `fly --rerun`: stream the recording to a viewer as well
         self.allow_code_change = False  # resume a run whose earlier frames ran other code (recorded)
         self.recorder = NullRecorder()  # the recording, opened by the first step of this process
@@ -117,6 +118,7 @@ class Mission:
             raise FlightReconError(f"cannot resume: {cfg_path} not found (is {run_dir} a run folder?)")
         refuse_legacy(run_dir)
         mission = cls(load_config(cfg_path), run_dir, progress=progress)
+        (run_dir / run_folder.FAILED).unlink(missing_ok=True)  # flying on: an earlier stop no longer stands
         if ckpt.is_file():
             mission._load_checkpoint(ckpt)
         return mission
@@ -186,9 +188,10 @@ class Mission:
 
     # ------------------------------------------------------------------ one step
     def _take_off(self) -> None:
-        ground = self.rig.start.copy()
-        ground[2] = self.rig.start[2] - self.cfg.sim.takeoff_height + self.cfg.drone.body_radius * 0.5
-        self.flight.start(ground, 0.0)
+        """Climb from the floor to the take-off point (moved off the default when that is unsafe: said)."""
+        if self.rig.takeoff.moved:
+            self._event(self.rig.takeoff.note, logging.WARNING)
+        self.flight.start(self.rig.takeoff.ground, 0.0)
         self.flight.go_to(self.rig.start, 0.0)
         self.flight.wait_until_arrived()
 
@@ -314,18 +317,21 @@ class Mission:
         self.recorder.candidates(results, feasible, scores if len(feasible) > 1 else None, chosen)
         t = time.perf_counter()
         before = len(self.flight.log)
-        if chosen is not None:
-            try:
+        self.flight.stop_on_contact = self.cfg.sim.on_contact == "stop"  # airborne: the take-off is behind
+        try:
+            if chosen is not None:
                 self.flight.fly(chosen.trajectory)
                 if not self.flight.wait_until_arrived():
                     self._event(f"frame {self.state.frame}: did not settle at the chosen view; capturing anyway")
-            except FlightDiverged as exc:
-                raise FlightReconError(f"{exc} (run folder {self.run_dir} keeps the frames so far)") from None
-            row["flight_time"] = float(chosen.duration)
-            self.state.flight_distance += float(chosen.length)
-        else:
-            self.flight.hover(1.0)
-            row["flight_time"] = 1.0
+                row["flight_time"] = float(chosen.duration)
+                self.state.flight_distance += float(chosen.length)
+            else:
+                self.flight.hover(1.0)
+                row["flight_time"] = 1.0
+        except FlightDiverged as exc:
+            raise FlightReconError(f"{exc} (run folder {self.run_dir} keeps the frames so far)") from None
+        except FlightContact as exc:
+            self._stop_for_contact(exc)
         row["flight_distance"] = self.state.flight_distance
         row["t_fly_sim"] = time.perf_counter() - t
         flown = self.flight.log.slice_from(before)
@@ -335,6 +341,17 @@ class Mission:
         row["contacts"] = len(self.flight.log.events)
         for ev in flown.events:
             self._event(f"frame {self.state.frame}: contact {ev.describe()}")
+
+    def _stop_for_contact(self, exc: FlightContact) -> NoReturn:
+        """sim.on_contact = "stop": end the run at the frame whose flight touched the scene, leaving
+        the frames before it, the event and failed.txt in the run folder (a sweep skips it and reports it)."""
+        text = (f"frame {self.state.frame}: the flight stopped: {exc}. The planner keeps planner.safety_margin "
+                "beyond drone.body_radius from what it has mapped; raise it, or set sim.on_contact = "
+                "\"continue\" to fly on and count the contacts in metrics.json")
+        self._event(text)  # (the error raised says it to the user)
+        self._save_frame_outputs()
+        write_text(self.run_dir / run_folder.FAILED, text + "\n")
+        raise FlightContact(f"{text} (run folder {self.run_dir} keeps the frames before it)", exc.event) from None
 
     def _diagnose_choice(self, chosen: CandidateResult, scores: np.ndarray) -> None:
         """output.diagnose: the move, the best score over the median, and the selector's own diagnosis
@@ -419,6 +436,7 @@ class Mission:
             "map_mb": (self.run_dir / run_folder.MAP).stat().st_size / 1e6,
             "flight_distance_m": self.state.flight_distance, "sim_time_s": self.flight.time,
             "wall_time_s": self.state.wall_time, "contacts": len(self.flight.log.events),
+            "contact_frames": _contact_frames(rec),
             "recoveries": sum(1 for r in rec if r.get("recovery")),
             "eval": final,
             "mean_times_s": {k: float(np.mean([r[k] for r in rec if k in r]))
@@ -486,6 +504,17 @@ class _progress:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+def _contact_frames(rows: list[dict]) -> list[int]:
+    """Frames whose flight touched the scene (frame 0's includes the take-off): where the running
+    count of contacts in frames.csv grows."""
+    frames, seen = [], 0
+    for r in rows:
+        if r.get("contacts", seen) > seen:
+            frames.append(r["frame"])
+            seen = r["contacts"]
+    return frames
 
 
 def _plain(row: dict) -> dict:

@@ -1,7 +1,8 @@
 """The scripted survey flight: take off, fly a loop of waypoints through the room, capture RGB-D.
 
-Waypoints lie on rays from the take-off column (scene meta 'spawn', kept free of furniture by the
-procedural scenes; the room center otherwise) at the take-off height, one ray per heading. Each ray
+Waypoints lie on rays from the take-off point (above scene meta 'spawn', kept free of furniture by the
+procedural scenes, or the room center; the nearest safe point when that one is not: takeoff.py) at
+its height, one ray per heading. Each ray
 is walked outward on the scene's distance field and stops where the drone's body radius plus the
 planner's safety margin would no longer fit, or at OUTER_SHARE of the way to the walls, so the straight leg from
 the center to every waypoint is clear. Consecutive waypoints are joined by a straight leg when that
@@ -13,7 +14,9 @@ seen by its neighbours, except near the top and bottom of its central columns: a
 by 45 degrees sees a point at elevation e only where tan(e) <= 0.53 (4:3 frames), the held-out one up to
 0.75, so nearby ceiling and floor there count on other waypoints, and 2.5% of office0's frame 44 is seen
 by no other frame; the old 2 headings, outward and back, left held-out views largely unseen). The
-frames go to an RGB-D dataset (flightrecon.dataset) with the flown trajectory.
+frames go to an RGB-D dataset (flightrecon.dataset) with the flown trajectory. A contact with the
+scene after take-off stops the survey with an error (the dataset keeps the frames before it), unless
+sim.on_contact is "continue": then the contacts are counted and listed.
 """
 
 from __future__ import annotations
@@ -30,14 +33,13 @@ from flightrecon.dataset import DatasetWriter
 from flightrecon.errors import DataError, SceneError
 from flightrecon.fileio import write_text
 from flightrecon.planning.distance_field import DistanceField
-from flightrecon.rig import build_rig, takeoff_point
+from flightrecon.rig import build_rig
 from flightrecon.scene.types import Scene
 
 N_RAYS = 8
 WALL_KEEP = 0.4  # waypoints stay this much farther from the room box than the clearance demands (m)
 OUTER_SHARE = 0.65  # of the way to the walls: outward views keep some context, not just a wall
 MIN_RADIUS = 0.3  # rays that cannot go this far from the center get no waypoint
-START_ABOVE_FLOOR = 0.05  # the drone starts resting just above the floor
 HEADINGS = 8  # captures per waypoint, equally spaced in yaw starting outward
 
 
@@ -61,14 +63,11 @@ def _clear(field: DistanceField, a: np.ndarray, b: np.ndarray, required: float) 
     return bool(field.distance(pts).min() >= required)
 
 
-def survey_waypoints(scene: Scene, cfg: ScenarioConfig, field: DistanceField,
+def survey_waypoints(scene: Scene, cfg: ScenarioConfig, field: DistanceField, center: np.ndarray,
                      headings: int = HEADINGS) -> list[Waypoint]:
-    """The loop of capture points (see the module doc), starting and ending near the center."""
-    center = takeoff_point(scene, cfg)
+    """The loop of capture points (see the module doc), starting and ending over `center`, the
+    take-off point (rig.takeoff: its clearance is checked there)."""
     required = cfg.required_clearance
-    if field.distance(center[None])[0] < required:
-        raise SceneError(f"scene '{scene.name}': the take-off point {np.round(center, 2).tolist()} has less than "
-                         f"{required:.2f} m clearance (drone.body_radius + planner.safety_margin)")
     room = np.asarray(scene.meta.get("room_box", scene.bounds), float)
     step = 0.5 * field.voxel_size
     points = []
@@ -114,25 +113,27 @@ def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str
                headings: int = HEADINGS) -> SurveyResult:
     """Fly the survey in `cfg`'s scene and write the dataset to `out_dir` (`headings` captures per waypoint)."""
     from flightrecon.sim.flight import Flight
-    from flightrecon.sim.safety import ClearanceMonitor
+    from flightrecon.sim.safety import ClearanceMonitor, FlightContact
 
     out_dir = Path(out_dir)
     progress(f"scene {cfg.scene.name}: building the world and distance field")
     rig = build_rig(cfg, truth=False)
     scene, camera, center = rig.scene, rig.camera, rig.start
+    if rig.takeoff.moved:
+        progress(rig.takeoff.note)
     field = scene_distance_field(scene, cfg, center)
-    route = survey_waypoints(scene, cfg, field, headings)
+    route = survey_waypoints(scene, cfg, field, center, headings)
     n_frames = sum(len(w.yaws) for w in route)
     c = cfg.camera
     flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(scene.trimesh, cfg.drone.body_radius))
     writer = DatasetWriter(out_dir, camera.K, c.width, c.height)
-    start = center.copy()
-    start[2] = float(scene.meta.get("floor_z", scene.bounds[0, 2])) + START_ABOVE_FLOOR + 0.03
-    flight.start(start, 0.0)
-    progress(f"take-off to {cfg.sim.takeoff_height:.2f} m; {len(route)} waypoints, {n_frames} frames")
+    flight.start(rig.takeoff.ground, 0.0)
+    progress(f"take-off to {np.round(center, 2).tolist()}; {len(route)} waypoints, {n_frames} frames")
     flight.go_to(center, 0.0)
     unsettled = 0 if flight.wait_until_arrived() else 1
     airborne = len(flight.log)  # clearance is reported from here: on the floor it is negative by design
+    flight.stop_on_contact = cfg.sim.on_contact == "stop"
+    i = 0
     try:
         for i, wp in enumerate(route):
             for j, yaw in enumerate(wp.yaws or (None,)):
@@ -147,6 +148,10 @@ def run_survey(cfg: ScenarioConfig, out_dir: str | Path, progress: Callable[[str
                 progress(f"[{len(writer.frames)}/{n_frames}] waypoint {i + 1}/{len(route)} "
                          f"at {np.round(wp.position, 2).tolist()} yaw {math.degrees(yaw) % 360:.0f} deg, "
                          f"t = {flight.time:.1f} s")
+    except FlightContact as exc:
+        raise FlightContact(f"the survey stopped on its way to waypoint {i + 1}/{len(route)}: {exc}; {out_dir} keeps "
+                            f"the {len(writer.frames)} frames before it. Raise planner.safety_margin, or set "
+                            "sim.on_contact = \"continue\" to fly on and count the contacts", exc.event) from None
     finally:
         camera.close()
         if writer.frames:

@@ -15,7 +15,8 @@ from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 from flightrecon.config import load_config
 from flightrecon.evaluation.intervals import mean_interval, paired_difference
 from flightrecon.evaluation.views import HEADING_SECTORS, evaluation_poses, grid_size, view_metrics
-from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
+from flightrecon.evaluation.visible_surface import visible_surface
+from flightrecon.scene.free_space import room_free_space
 from flightrecon.rig import flight_region, truth_field
 from flightrecon.scene.source import procedural_scene
 from flightrecon.scene.types import Scene
@@ -25,7 +26,8 @@ from flightrecon.scene.types import Scene
 def room0():
     cfg = load_config("sweep_cpu", ["scene.name=room0"])
     scene = procedural_scene("room0", 0)
-    workspace, start = flight_region(scene, cfg)
+    workspace, takeoff = flight_region(scene, cfg)
+    start = takeoff.hover
     truth = truth_field(scene, cfg, workspace)
     return cfg, scene, workspace, start, truth
 

@@ -13,7 +13,7 @@ from flightrecon.control.trajectory import Hold
 from flightrecon.geometry import camera_pose_from_body, make_pose
 from flightrecon.sim.flight import Flight
 from flightrecon.sim.quadrotor import DroneHandle, add_quadrotor
-from flightrecon.sim.safety import FlightDiverged
+from flightrecon.sim.safety import FlightContact, FlightDiverged
 
 WALL_X = 2.0  # inner face of the wall in front of the drone
 
@@ -114,6 +114,21 @@ def test_flying_into_a_wall_records_a_contact():
     # The drone touched first when its front reached the wall: center one body radius away.
     row = np.searchsorted(f.log["t"], first.time) - 1
     assert WALL_X - f.log["x"][row] < f.cfg.drone.body_radius + 0.02
+
+
+def test_a_flight_that_stops_on_contact_ends_at_the_first_one():
+    f = flight()
+    f.stop_on_contact = True  # what sim.on_contact = "stop" sets once the drone is airborne
+    move = MinJerkMove.within_limits([0, 0, 1.0], [WALL_X + 0.5, 0.0, 1.0], 0.0, 0.0, 0.3, 1.0, 4.0, 1.0, 1.0)
+    with pytest.raises(FlightContact) as err:
+        f.fly(move, extra_time=1.0)
+    first = err.value.event
+    assert f.log.events[0] == first and first.other_geom == "wall"
+    assert all(e.time == first.time for e in f.log.events)  # (two rotors may touch in the same step)
+    assert str(err.value) == f"the drone touched the scene: {first.describe()}"
+    assert f.log["t"][-1] < first.time < f.log["t"][-1] + 1.5 * f.control_dt  # no step after the contact
+    assert f.log.slice_from(len(f.log) - 1).events == f.log.events  # the contact belongs to the last step
+    assert f.log.slice_from(len(f.log)).events == []
 
 
 @pytest.mark.parametrize("upset", ["roll", "nan_state", "nan_motor"])

@@ -60,7 +60,7 @@ def test_survey_route_keeps_clearance_on_the_true_mesh():
     scene = scene_from_config(cfg.scene)
     center = takeoff_point(scene, cfg)
     field = scene_distance_field(scene, cfg, center)
-    route = survey_waypoints(scene, cfg, field)
+    route = survey_waypoints(scene, cfg, field, center)
     assert sum(len(w.yaws) for w in route) >= 8
     pts = [center]
     for w in route:

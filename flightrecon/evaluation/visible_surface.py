@@ -19,13 +19,10 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from flightrecon.scene.free_space import FreeSpace, room_free_space
+from flightrecon.scene.free_space import FreeSpace
 from flightrecon.scene.types import Scene
 
 OFFSET = 1.5  # voxels off the surface at which the free space is probed
-
-# the surface is visible from the room's free space: callers take both from here
-__all__ = ["FreeSpace", "VisibleSurface", "room_free_space", "visible_surface"]
 
 
 @dataclass(frozen=True)

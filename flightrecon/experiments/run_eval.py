@@ -21,7 +21,7 @@ from flightrecon.errors import FlightReconError
 from flightrecon.evaluation.lpips_metric import LpipsMetric
 from flightrecon.evaluation.map_metrics import EvaluationTruth, evaluate_map, fusion_poses
 from flightrecon.evaluation.views import EvaluationSet, grid_size
-from flightrecon.evaluation.visible_surface import room_free_space, visible_surface
+from flightrecon.evaluation.visible_surface import visible_surface
 from flightrecon.fileio import atomic_path, write_json, write_text
 from flightrecon.geometry import intrinsics
 from flightrecon.mapping.ply import load_map
@@ -40,9 +40,8 @@ def evaluation_views_for(cfg: ScenarioConfig) -> EvaluationSet:
 def evaluation_truth_for(cfg: ScenarioConfig) -> EvaluationTruth:
     """The evaluation views with ground truth, the fusion views and the visible ground-truth surface."""
     rig = build_rig(cfg)
-    free = room_free_space(rig.scene, rig.start)
-    views = rig.evaluation_set(free)
-    visible = visible_surface(rig.scene, free, cfg.metrics.sample_points)
+    views = rig.evaluation_set()
+    visible = visible_surface(rig.scene, rig.free, cfg.metrics.sample_points)
     size = cfg.camera.height
     return EvaluationTruth(views, fusion_poses(views.poses, grid_size(cfg.evaluation.views) ** 2),
                            intrinsics(size, size, 90.0), size, SurfaceDistance(rig.scene.trimesh), visible.points,

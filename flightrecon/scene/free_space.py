@@ -60,6 +60,31 @@ def room_free_space(scene: Scene, seed_point: np.ndarray, pitch: float = PITCH,
     """The room around `seed_point` (the take-off point) at voxel size `pitch` (m)."""
     occ, origin = surface_voxels(scene, pitch)
     seed = tuple(np.floor((np.asarray(seed_point, float) - origin) / pitch).astype(np.int64))
+    return _room(scene, occ, origin, pitch, seed, hole_radius, seed_point)
+
+
+def largest_free_space(scene: Scene, box: np.ndarray, pitch: float = PITCH,
+                       hole_radius: float = HOLE_RADIUS) -> FreeSpace:
+    """The room found without a point in it, to choose the take-off point by (the default one may lie
+    in furniture or outside the walls): the connected empty region that fills most of `box` (2, 3),
+    the room's box, bounded as `room_free_space` bounds it from its most open voxel. Empty when the
+    box holds no empty voxel."""
+    occ, origin = surface_voxels(scene, pitch)
+    labels, _ = ndimage.label(~occ)
+    in_box = _within(np.asarray(box, float), origin, pitch, occ.shape) & (labels > 0)
+    counts = np.bincount(labels[in_box], minlength=1)
+    if counts.max(initial=0) == 0:
+        return FreeSpace(np.zeros(occ.shape, bool), origin, pitch)
+    region = in_box & (labels == int(np.argmax(counts)))
+    clearance = np.where(region, ndimage.distance_transform_edt(~occ), -1.0)
+    seed = tuple(int(i) for i in np.unravel_index(int(np.argmax(clearance)), occ.shape))
+    return _room(scene, occ, origin, pitch, seed, hole_radius, origin + (np.array(seed) + 0.5) * pitch)
+
+
+def _room(scene: Scene, occ: np.ndarray, origin: np.ndarray, pitch: float, seed: tuple, hole_radius: float,
+          seed_point) -> FreeSpace:
+    """The empty region holding voxel `seed`; bounded by the scan's extent and its holes closed when
+    it reaches the grid's edge (the module docstring)."""
     room = _component(~occ, seed, scene.name, seed_point)
     if not _touches_edge(room):
         return FreeSpace(room, origin, pitch, enclosed=True)

@@ -4,7 +4,9 @@ Each control step reads the simulated state (the truth everything downstream use
 reference, runs the SE(3) controller and the mixer, holds the motor commands for the physics
 substeps, then records one log row (state, reference, commands, rotor thrusts, clearance) and any
 new contact with the scene. A diverged state stops the flight with `FlightDiverged`, whose `log`
-(and `Flight.log`) keep everything recorded up to it. `wait_until_arrived` holds the last reference
+(and `Flight.log`) keep everything recorded up to it; with `stop_on_contact` set (callers set it
+from sim.on_contact once the drone is airborne: it starts resting on the floor), a new contact stops
+it with `FlightContact`. `wait_until_arrived` holds the last reference
 until position, yaw and speed have stayed inside their tolerances for the settle time, so images are
 taken at rest. `estimated_camera_pose` adds the configured pose noise (what a mapper would get from
 a state estimator); `camera_pose` is the exact simulated pose.
@@ -26,7 +28,7 @@ from flightrecon.control.se3 import SE3Controller
 from flightrecon.control.trajectory import FlatState, Hold, Trajectory
 from flightrecon.errors import ConfigError
 from flightrecon.sim.quadrotor import DroneHandle, DroneState
-from flightrecon.sim.safety import (ClearanceMonitor, ContactEvent, ContactMonitor, FlightDiverged,
+from flightrecon.sim.safety import (ClearanceMonitor, ContactEvent, ContactMonitor, FlightContact, FlightDiverged,
                                     divergence_reason)
 
 COLUMNS = ("t", "x", "y", "z", "qw", "qx", "qy", "qz", "vx", "vy", "vz", "wx", "wy", "wz",
@@ -93,8 +95,12 @@ class FlightLog:
         self.notes = list(state["notes"])
 
     def slice_from(self, start: int) -> "FlightLog":
+        """The rows from `start` on, with the contacts that began in them (a step's contacts carry
+        the time after it, which is the next row's)."""
         out = FlightLog()
         out._rows = self._rows[start:]
+        if out._rows:
+            out.events = [e for e in self.events if e.time > out._rows[0][0]]
         return out
 
 
@@ -119,6 +125,7 @@ class Flight:
                            self.drone.max_thrust)
         self.clearance = clearance
         self.contacts = ContactMonitor(model, self.drone.geom_ids)
+        self.stop_on_contact = False  # raise FlightContact at a new contact with the scene
         self.log = FlightLog()
         self.last_reference: FlatState | None = None
         self._rng = np.random.default_rng([cfg.seed, 7919])
@@ -169,6 +176,8 @@ class Flight:
         events = self.contacts.update(self.data)
         if events:
             self.log.events.extend(events)
+            if self.stop_on_contact:
+                raise FlightContact(f"the drone touched the scene: {events[0].describe()}", events[0])
 
     def _diverged(self, t: float, reason: str) -> None:
         msg = f"flight diverged at t={t:.3f}s: {reason}; the log keeps {len(self.log)} steps"

@@ -4,7 +4,8 @@ Clearance is the exact distance from the drone's center to the scene's triangles
 (scene.surface_distance) minus the radius of the sphere that encloses the frame and rotors, so it is
 the distance from the drone's body to the nearest surface (negative: the sphere overlaps the scene).
 Contacts are MuJoCo's own contacts between a drone geom and any other geom: one event when a pair
-starts touching, not one per step. Divergence (a non-finite state or a tilt beyond the limit)
+starts touching, not one per step; a flight told to stop on contact (sim.on_contact) raises
+`FlightContact` at the first one. Divergence (a non-finite state or a tilt beyond the limit)
 raises `FlightDiverged`, which carries the log recorded so far.
 """
 
@@ -37,6 +38,14 @@ class ClearanceMonitor:
 
     def __call__(self, position: np.ndarray) -> float:
         return float(self.surface.distance(np.asarray(position, float).reshape(1, 3))[0]) - self.body_radius
+
+
+class FlightContact(FlightReconError):
+    """The drone touched the scene in a flight that stops on contact; `event` is the contact."""
+
+    def __init__(self, message: str, event: "ContactEvent") -> None:
+        super().__init__(message)
+        self.event = event
 
 
 @dataclass(frozen=True)
