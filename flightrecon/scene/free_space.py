@@ -75,7 +75,10 @@ def largest_free_space(scene: Scene, box: np.ndarray, pitch: float = PITCH,
     counts = np.bincount(labels[in_box], minlength=1)
     if counts.max(initial=0) == 0:
         return FreeSpace(np.zeros(occ.shape, bool), origin, pitch)
-    region = in_box & (labels == int(np.argmax(counts)))
+    # its most open voxel within the scan's extent, which bounding an open scan keeps
+    region = in_box & (labels == int(np.argmax(counts))) & _within(scene.bounds, origin, pitch, occ.shape)
+    if not region.any():
+        return FreeSpace(np.zeros(occ.shape, bool), origin, pitch)
     clearance = np.where(region, ndimage.distance_transform_edt(~occ), -1.0)
     seed = tuple(int(i) for i in np.unravel_index(int(np.argmax(clearance)), occ.shape))
     return _room(scene, occ, origin, pitch, seed, hole_radius, origin + (np.array(seed) + 0.5) * pitch)
