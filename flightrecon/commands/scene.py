@@ -120,7 +120,8 @@ def _scanify(args) -> int:
     written = write_scan(scan, args.out)
     t = scan.truth
     up = ", ".join(f"{x:.3f}" for x in t["up"])
-    print(f"wrote {written[0]} ({len(scan.vertices)} vertices, {len(scan.faces)} triangles, {t['frames']} frames fused)")
+    print(f"wrote {written[0]} ({len(scan.vertices)} vertices, {len(scan.faces)} triangles, "
+          f"{t['frames']} frames fused)")
     print(f"truth in {written[-1]}: up ({up}), floor {t['floor']:.3f} {t['units']} along it; "
           f"kinds {', '.join(json.loads(written[-1].read_text())['kinds'])}")
     return 0

@@ -4,8 +4,8 @@ sensor records, rendered by ray casting the scene's triangles.
 Real reconstructions (ScanNet, BundleFusion, KinectFusion) are fused from such recordings, so their
 flaws come from here: the camera stays at chest to eye height and rarely looks up, so the ceiling
 is seen obliquely or not at all; the depth is noisy with a noise that grows with the square of the
-distance (Kinect's structured light, Khoshelham and Elberink 2012's model), has no return beyond its
-range, at grazing angles and on depth edges, and loses random pixels. Rendering is exact (Open3D's
+distance (Kinect's structured light: the axial noise model of Nguyen, Izadi and Lovell 2012), has
+no return beyond its range, at grazing angles and on depth edges, and loses random pixels. Rendering is exact (Open3D's
 RaycastingScene, an Embree BVH), so every flaw is one of those added on purpose.
 """
 
@@ -46,7 +46,8 @@ def handheld_walk(center: np.ndarray, half_extent: np.ndarray, frames: int, rng:
                   look_up: bool) -> np.ndarray:
     """T_wc (frames, 4, 4) of one loop around `center` (x, y, floor z) inside a room of horizontal
     `half_extent`: the sensor held 1.2-1.7 m high, turning twice around while walking, pitched down
-    (and, with `look_up`, up toward the ceiling too), with the small roll and shake of a hand."""
+    (and, with `look_up`, up toward the ceiling too), with the small roll and shake of a hand. It
+    starts looking down most steeply, so a scan stored in its first camera's frame is well tilted."""
     t = np.arange(frames) / frames
     radius = np.clip(0.35 * np.asarray(half_extent, float)[:2], 0.6, 1.8)
     phase = rng.uniform(0, 2 * math.pi, 4)

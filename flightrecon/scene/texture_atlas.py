@@ -2,7 +2,7 @@
 
 Textured scans (Matterport, HM3D, many KinectFusion exports) carry their colour in an image that
 UVs index, not on vertices. Any vertex-coloured mesh can be turned into one: each pair of triangles
-gets its own small square cell of the image, split along its diagonal, painted with the colours
+gets its own small square cell of the image, one triangle in each corner, painted with the colours
 interpolated across each triangle. No unwrapping is needed, and the loader's texture path is used.
 """
 
@@ -17,43 +17,48 @@ import numpy as np
 from flightrecon.fileio import write_bytes
 
 CELL = 4  # pixels on a side of each pair's square cell
-_MARGIN = 0.5  # pixels between a cell's border and its triangles' corners
+_LEG = 2  # pixels along each leg of a triangle: A covers pixels with i + j <= 2, B those with i + j >= 4
 
 
 def per_triangle_atlas(vertices: np.ndarray, faces: np.ndarray, vertex_colors: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(vertices (3F, 3), faces (F, 3), uv (3F, 2) with v = 0 at the image's bottom row, image
-    (H, W, 3) uint8) showing the vertex colours (V, 3) uint8 of the triangles `faces`."""
+    (H, W, 3) uint8) showing the vertex colours (V, 3) uint8 of the triangles `faces`.
+
+    In its pair's cell, triangle A (even) has its corners at the centres of pixels (0, 0), (2, 0)
+    and (0, 2) (column, row) and triangle B (odd) at (3, 3), (1, 3) and (3, 1), so neither samples
+    the other's colours at its corners."""
     faces = np.asarray(faces, np.int64)
     n = len(faces)
     cells = (n + 1) // 2
     cols = max(1, math.ceil(math.sqrt(cells)))
     rows = max(1, math.ceil(cells / cols))
     cell = np.arange(n) // 2
-    x0, y0 = (cell % cols) * CELL, (cell // cols) * CELL  # the cell's top-left pixel corner
-    lo, hi = _MARGIN, CELL - _MARGIN
-    # corners (s, t) in the cell: triangle A (even) (0,0) (1,0) (0,1), triangle B (odd) (1,1) (0,1) (1,0)
-    st = np.where((np.arange(n) % 2 == 0)[:, None, None], [[[0, 0], [1, 0], [0, 1]]], [[[1, 1], [0, 1], [1, 0]]])
-    px = np.stack([x0, y0], 1)[:, None, :] + lo + st * (hi - lo)  # (F, 3, 2) pixel coordinates
+    origin = np.stack([(cell % cols) * CELL, (cell // cols) * CELL], 1)[:, None, :]  # top-left pixel
+    a_corners = np.array([[0, 0], [_LEG, 0], [0, _LEG]])
+    corners = np.where((np.arange(n) % 2 == 0)[:, None, None], a_corners, CELL - 1 - a_corners)
+    px = origin + corners + 0.5  # (F, 3, 2) pixel centres (x, y from the top)
     W, H = cols * CELL, rows * CELL
     uv = np.stack([px[..., 0] / W, 1.0 - px[..., 1] / H], -1).reshape(-1, 2)
     image = _paint(np.asarray(vertex_colors, np.float64)[faces], cols, rows)
-    return (np.asarray(vertices, np.float64)[faces].reshape(-1, 3), np.arange(3 * n).reshape(n, 3), uv, image)
+    return np.asarray(vertices, np.float64)[faces].reshape(-1, 3), np.arange(3 * n).reshape(n, 3), uv, image
 
 
 def _paint(colors: np.ndarray, cols: int, rows: int) -> np.ndarray:
     """The atlas image: each pixel of a cell gets the colour at its centre, interpolated across the
-    triangle of the pair that covers it (`colors`: (F, 3 corners, 3) RGB)."""
+    triangle of the pair that covers it (`colors`: (F, 3 corners, 3) RGB); the pixels between the
+    two (i + j = 3) take A's colour at the nearest point of its long side."""
     if len(colors) % 2:
         colors = np.concatenate([colors, colors[-1:]])
     pairs = colors.reshape(-1, 2, 3, 3)
-    c = (np.arange(CELL) + 0.5 - _MARGIN) / (CELL - 2 * _MARGIN)
-    t, s = np.meshgrid(c, c, indexing="ij")  # (CELL, CELL): rows go with t, columns with s
-    lower = (s + t <= 1.0)[..., None]
-    w_a = np.stack([1 - s - t, s, t], -1)  # barycentric weights in triangle A
-    w_b = np.stack([s + t - 1, 1 - s, 1 - t], -1)  # ... in triangle B
-    cell = np.where(lower[None], np.einsum("ijk,nkc->nijc", w_a, pairs[:, 0]),
-                    np.einsum("ijk,nkc->nijc", w_b, pairs[:, 1]))  # (pairs, CELL, CELL, 3)
+    row, col = np.meshgrid(np.arange(CELL), np.arange(CELL), indexing="ij")
+
+    def weights(i, j):  # barycentric weights of pixel centres in a triangle with legs along i and j
+        w = np.clip(np.stack([1 - (i + j) / _LEG, i / _LEG, j / _LEG], -1), 0.0, None)
+        return w / w.sum(-1, keepdims=True)
+    in_a = (col + row <= CELL - 1)[None, ..., None]
+    cell = np.where(in_a, np.einsum("ijk,nkc->nijc", weights(col, row), pairs[:, 0]),
+                    np.einsum("ijk,nkc->nijc", weights(CELL - 1 - col, CELL - 1 - row), pairs[:, 1]))
     image = np.zeros((rows * cols, CELL, CELL, 3))
     image[:len(cell)] = cell
     image = image.reshape(rows, cols, CELL, CELL, 3).transpose(0, 2, 1, 3, 4).reshape(rows * CELL, cols * CELL, 3)
