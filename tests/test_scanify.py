@@ -241,6 +241,8 @@ def test_bad_options_say_how_to_fix_them():
         ScanOptions(convention="camera", heading_deg=10.0)
     with pytest.raises(SceneError, match="wall_top"):
         ScanOptions(wall_top=0.1)
+    with pytest.raises(SceneError, match=r"max_faces >= 1000 \(or None\)"):
+        ScanOptions(max_faces=0)
     with pytest.raises(SceneError, match=r"\.ply .* or \.obj"):
         write_scan(Scan(np.zeros((3, 3)), np.array([[0, 1, 2]]), np.zeros((3, 3), np.uint8), {"kinds": []}),
                    Path("scan.glb"))

@@ -85,7 +85,8 @@ class ScanOptions:
             raise bad(f"ceiling={self.ceiling!r}: choose one of {', '.join(CEILINGS)}")
         if self.wall_top is not None and not 0.5 <= self.wall_top <= 5.0:
             raise bad(f"wall_top={self.wall_top}: give a height over the floor in meters (0.5 to 5), e.g. 1.8")
-        if self.holes < 0 or self.frames < 1 or not self.voxel > 0 or (self.max_faces or 1000) < 1000:
+        if self.holes < 0 or self.frames < 1 or not self.voxel > 0 or (self.max_faces is not None
+                                                                        and self.max_faces < 1000):
             raise bad(f"holes={self.holes}, frames={self.frames}, voxel={self.voxel}, max_faces={self.max_faces}: "
                       "holes must be >= 0, frames >= 1, voxel > 0 and max_faces >= 1000 (or None)")
         if len(self.offset) != 3:
