@@ -209,6 +209,21 @@ def test_tsdf_of_only_invalid_depth_is_an_empty_mesh():
     K = intrinsics(32, 24, 90.0)
     mesh = fuse_depth_maps([np.zeros((24, 32))], camera_pose(np.zeros(3), 0.0)[None], K, voxel=0.05, truncation=0.15)
     assert mesh.vertices.shape == (0, 3) and mesh.faces.shape == (0, 3)
+    assert mesh.vertex_colors is None
+
+
+def test_tsdf_with_colour_images_colours_the_vertices_as_seen():
+    # a wall 1 m ahead, its left half red and its right half blue in the image
+    K = intrinsics(32, 24, 90.0)
+    T = camera_pose(np.zeros(3), 0.0)
+    rgb = np.zeros((24, 32, 3))
+    rgb[:, :16, 0], rgb[:, 16:, 2] = 1.0, 1.0
+    mesh = fuse_depth_maps([np.ones((24, 32))], T[None], K, voxel=0.05, truncation=0.15, colors=[rgb])
+    assert len(mesh.faces) > 100 and mesh.vertex_colors.shape == mesh.vertices.shape
+    left = mesh.vertices[:, 1] > 0.1  # world y is the image's left
+    right = mesh.vertices[:, 1] < -0.1
+    np.testing.assert_allclose(mesh.vertex_colors[left], [[1.0, 0.0, 0.0]] * int(left.sum()), atol=1e-6)
+    np.testing.assert_allclose(mesh.vertex_colors[right], [[0.0, 0.0, 1.0]] * int(right.sum()), atol=1e-6)
 
 
 @pytest.mark.parametrize("error, expected", [

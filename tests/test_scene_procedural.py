@@ -69,6 +69,12 @@ def test_recess_opens_a_wall():
     assert (near & beyond & low).sum() > 10
 
 
+def test_a_screen_on_a_cabinet_narrower_than_it_is_built():
+    # office4 seed 3 draws a monitor wider than the cabinet it stands on (it used to fail to build)
+    scene = make_scene("office4", 3)
+    assert len(scene.faces) > 1000
+
+
 def test_unknown_name_is_a_scene_error():
     with pytest.raises(SceneError, match="office9"):
         make_scene("office9")

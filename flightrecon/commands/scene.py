@@ -1,4 +1,5 @@
-"""`flightrecon scene make|info|tour`: write a procedural scene, describe a scene file, render views."""
+"""`flightrecon scene make|info|tour|scanify`: write a procedural scene, describe a scene file, render
+views, write a scan-like mesh of a procedural scene."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from flightrecon.errors import SceneError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("scene", help="procedural scenes and scene files (make, info, tour)")
+    p = sub.add_parser("scene", help="procedural scenes and scene files (make, info, tour, scanify)")
     ssub = p.add_subparsers(dest="scene_cmd", metavar="ACTION")
 
     mk = ssub.add_parser("make", help="write a procedural scene as Replica's DIR/mesh.ply")
@@ -38,6 +39,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     tour.add_argument("--hfov", type=float, default=90.0, help="horizontal field of view (deg)")
     tour.add_argument("--pitch", type=float, default=10.0, help="camera pitch, positive looks down (deg)")
     tour.set_defaults(func=_tour)
+
+    scan = ssub.add_parser("scanify", help="a scan-like mesh of a procedural scene (fused noisy hand-held depth, "
+                                           "holes, any frame and units) with its truth in <out>.truth.json")
+    scan.add_argument("name", help="office0..office4, room0..room2")
+    scan.add_argument("--out", required=True, help="mesh file: .ply (vertex colours) or .obj (texture atlas, "
+                                                   "with .mtl and .png beside it)")
+    scan.add_argument("--seed", type=int, default=0, help="seed of the scene and of the scan")
+    scan.add_argument("--convention", help="frame of the file: camera (the first camera's, OpenCV axes), y-up, "
+                                           "-y-up or z-up (default); write --convention=-y-up")
+    scan.add_argument("--units", help="m (default), cm or mm")
+    scan.add_argument("--ceiling", help="full (default: the operator looks up too), partial (hardly) or none "
+                                        "(cropped off)")
+    scan.add_argument("--wall-top", type=float, help="crop above this height over the floor (m): walls end low")
+    scan.add_argument("--holes", type=int, help="extra holes cut in the surface (default 0)")
+    scan.add_argument("--furniture", action="store_true", default=None,
+                      help="a box 0.9-1.3 m tall where the default take-off point is")
+    scan.add_argument("--heading-deg", type=float, help="turn about up before storing (axis conventions)")
+    scan.add_argument("--offset", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                      help="shift (m) before storing (axis conventions)")
+    scan.add_argument("--frames", type=int, help="hand-held poses (default 90)")
+    scan.add_argument("--voxel", type=float, help="TSDF voxel (m, default 0.03)")
+    scan.add_argument("--max-faces", type=int, help="decimate to this many triangles (default 150000; 0: keep all)")
+    scan.set_defaults(func=_scanify)
     p.set_defaults(func=lambda a: p.print_help())
 
 
@@ -72,6 +96,34 @@ def _make(args) -> int:
     scene = make_scene(args.name, args.seed)
     path = write_scene_dir(scene, args.out)
     print(f"wrote {path} ({len(scene.vertices)} vertices, {len(scene.faces) // 2} quads)")
+    return 0
+
+
+def scan_options(args):
+    """The ScanOptions of `scene scanify`'s arguments: those given, ScanOptions' defaults for the rest."""
+    from flightrecon.scene.scanify import ScanOptions
+
+    given = {key: getattr(args, key) for key in ("convention", "units", "ceiling", "wall_top", "holes", "furniture",
+                                                 "heading_deg", "frames", "voxel") if getattr(args, key) is not None}
+    if args.offset is not None:
+        given["offset"] = tuple(args.offset)
+    if args.max_faces is not None:
+        given["max_faces"] = args.max_faces or None
+    return ScanOptions(**given)
+
+
+def _scanify(args) -> int:
+    from flightrecon.scene.scanify import scan_procedural, write_scan
+
+    options = scan_options(args)  # bad options fail here, before the scan
+    scan = scan_procedural(args.name, args.seed, options)
+    written = write_scan(scan, args.out)
+    t = scan.truth
+    up = ", ".join(f"{x:.3f}" for x in t["up"])
+    print(f"wrote {written[0]} ({len(scan.vertices)} vertices, {len(scan.faces)} triangles, "
+          f"{t['frames']} frames fused)")
+    print(f"truth in {written[-1]}: up ({up}), floor {t['floor']:.3f} {t['units']} along it; "
+          f"kinds {', '.join(json.loads(written[-1].read_text())['kinds'])}")
     return 0
 
 

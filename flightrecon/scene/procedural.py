@@ -224,6 +224,7 @@ def _tabletop_objects(b, rng, to, R, w, d, h) -> None:
     """A monitor or laptop, a book stack and a mug: small objects on the surface."""
     if rng.uniform() < 0.6:
         sw, sh = rng.uniform(0.45, 0.65), rng.uniform(0.28, 0.38)
+        sw = min(sw, w)  # a screen on a narrow cabinet; other scenes are unchanged
         y = rng.uniform(-w / 2 + sw / 2, w / 2 - sw / 2)
         b.box(to([-d / 4, y, h + 0.005]), [0.18, 0.22, 0.01], P.metal([0.2] * 3, rng), CELL_FURN, R=R)
         b.box(to([-d / 4, y, h + 0.12]), [0.03, 0.05, 0.22], P.metal([0.2] * 3, rng), CELL_FURN, R=R)
