@@ -162,9 +162,9 @@ def test_a_floor_whose_faces_average_a_rounding_error_below_it_is_found():
 def test_a_scan_in_millimetres_is_refused_with_the_scale_that_fits(room, tmp_path):
     path = write_scannet(Scene(room.name, room.vertices * 1000.0, room.faces, vertex_colors=room.vertex_colors),
                          tmp_path / "mm")
-    height_m = float(np.ptp(room.vertices[:, 2]))
+    height_m = float(np.ptp(room.vertices, axis=0).min())  # room0's smallest side: its height
     with pytest.raises(SceneError, match=rf"scene {path} spans \d+ m .*likely in another unit; with "
-                                         rf"scene.unit_scale = 0.001 it is {height_m:.2f} m tall"):
+                                         rf"scene.unit_scale = 0.001 its smallest side is {height_m:.2f} m"):
         scene_from_config(load_config(None, [f"scene.path={path}"]).scene)
     scene = scene_from_config(load_config(None, [f"scene.path={path}", "scene.unit_scale=0.001"]).scene)
     np.testing.assert_allclose(np.sort(scene.vertices[:, 2]), np.sort(room.vertices[:, 2]), atol=1e-5)

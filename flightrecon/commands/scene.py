@@ -181,6 +181,13 @@ def _up_axis_line(s: dict) -> str:
     vec = "(" + ", ".join(f"{x:.2f}" for x in est["up"]) + ")"
     shares = (f"floor {est['floor_share']:.0%} + walls {est['wall_share']:.0%} of the area, "
               f"floor spread {est['floor_spread_deg']:.1f} deg")
+    cues = est.get("cues") or {}
+    if cues:
+        named = [k for k, v in cues["axis"].items() if v == "up"]
+        sign = ", ".join(f"{k} {v:+.2f}" for k, v in cues["sign"].items())
+        shares += (f"; axis named by {', '.join(named)} of {len(cues['axis'])} cues, support surfaces "
+                   f"{cues['support_share']:.1%} of the area, extent {cues['extent_m'][0]:.2f} m along it "
+                   f"(others {cues['extent_m'][1]:.2f}, {cues['extent_m'][2]:.2f}); sign: {sign}")
     if est["confidence"] == "confident":
         return f"auto: file {est['snapped'] or vec} -> world z, confident ({shares}){turn}"
     return (f"auto: uncertain ({est['reason']}; estimate {vec}, {shares}): kept file z -> world z{turn}; "

@@ -8,20 +8,29 @@ the walls and (if scanned) the ceiling, plus furniture whose tops are level. So:
    (floor, ceiling, table tops: horizontal if u is up) plus those perpendicular to it (walls). The
    best of a few hundred candidate directions (area-weighted samples of the face normals) is one
    axis of the room's frame; the second is the best one perpendicular to it, the third completes it.
-2. Which axis is up: the one holding the most horizontal area (floor + ceiling + support
-   surfaces, plus vertical faces at other headings than the walls: chairs turned at an angle,
-   cylinders). The margin over the runner-up is `axis_margin`.
+2. Which axis is up: three cues vote, and two must agree for the estimate to be confident.
+   (a) Level area: the axis holding the most horizontal area (floor + ceiling + support surfaces,
+   plus vertical faces at other headings than the walls). Alone it fails on open scans: without a
+   ceiling, and with the floor half hidden by furniture, a pair of long walls holds more.
+   (b) Support surfaces: furniture stands on the floor, so seats, beds and table tops face up
+   SUPPORT_M (0.3-1.2 m) above the scan's bottom; along a wall axis, faces parallel to the wall at
+   that distance face either way and are fewer. (c) Lowest extent: a room is lower than it is wide,
+   so the axis along which the scan is shortest, when that is a room's height (ROOM_HEIGHT_M) and
+   clearly shorter than the next (LOWEST_RATIO), is up; it abstains otherwise (a corridor, a tall
+   hall). A tie goes to the level area.
 3. Which way is up: the floor is the large horizontal layer at the BOTTOM of the scene, and the
-   room's other horizontal surfaces (seats, tables, shelves, beds) stand on it, low in the room.
-   The sign adds (a) the asymmetry of the horizontal area (faces within SIGN_DEG of level) in the
-   lowest and highest tenth of the height (a scan without a ceiling has its floor alone at an end) and (b) how low the
-   horizontal area between the two ends lies. The face winding ("normals pointing into the room")
-   cannot tell a floor from a ceiling: swapping the sign swaps both the layers and which way counts
-   as inward, so a floor facing up and a ceiling facing down score the same. Winding is used only
-   where the mesh shows a consistent orientation at its ends (inward-facing scans): then level
-   surfaces seen from above (table tops, whose undersides a scan rarely sees) point up (c).
-   Closed synthetic meshes (every object a closed box, outer faces included) show none, and
-   rely on (a) and (b). An upside-down mesh is detected this way.
+   room's other horizontal surfaces (seats, tables, shelves, beds) stand on it, low in the room
+   and facing up. The sign adds (a) the asymmetry of the horizontal area (faces within SIGN_DEG of
+   level) in the lowest and highest tenth of the height (a scan without a ceiling has its floor
+   alone at an end), (b) how low the horizontal area between the two ends lies, and (d) the
+   support surfaces facing one way over the other (a fused scan's floor is often less complete than
+   its ceiling, which (a) then reads the wrong way). The face winding ("normals pointing into the
+   room") cannot tell a floor from a ceiling: swapping the sign swaps both the layers and which way
+   counts as inward, so a floor facing up and a ceiling facing down score the same. Winding is used
+   only where the mesh shows a consistent orientation at its ends (inward-facing scans): then level
+   surfaces seen from above (table tops, whose undersides a scan rarely sees) point up (c). Closed
+   synthetic meshes (every object a closed box, outer faces included) show none, and rely on the
+   others. An upside-down mesh is detected this way.
 4. Refinement: the up axis that maximizes the area-weighted sum of squared normal components of
    the horizontal faces minus those of the vertical faces (the top eigenvector of their signed
    normal scatter), which fits floor and walls together to far better than 0.5 deg.
@@ -34,7 +43,8 @@ a coordinate axis, that axis is used exactly with its exact 90/180-degree rotati
 a file that already is z-up (or y-up) loads exactly as with `up_axis = "z"` (`"y"`).
 
 Confidence: the floor's share of the surface area, the walls' (faces within 10 deg of vertical),
-the floor normals' RMS spread about the axis, the axis and sign margins, and a room-sized extent
+the floor normals' RMS spread about the axis, two cues agreeing on the axis, the sign margin, and a
+room-sized extent
 (at least MIN_HEIGHT_M tall with MIN_FLOOR_M2 of floor); a small object or a flat sheet is
 "uncertain", and the loader then keeps the file's axes. Cost: a few vectorized passes over the faces.
 """
@@ -57,9 +67,11 @@ MIN_HEIGHT_M = 1.0  # a room is at least this tall along the up axis
 MIN_FLOOR_M2 = 1.0  # ... and has at least this much floor
 MIN_FLOOR_COVER = 0.25  # the floor layer covers this share of the footprint at least
 MIN_FLOOR_SHARE = 0.05  # share of the area in the floor layer
-MIN_EXPLAINED = 0.5  # floor + walls share of the area
+MIN_EXPLAINED = 0.35  # floor + walls share of the area (a furnished fused scan has half or less in them)
 MAX_SPREAD_DEG = 6.0  # RMS angle of the floor normals about the axis
-MIN_AXIS_MARGIN = 0.1  # relative lead of the up axis' horizontal area over the next axis
+SUPPORT_M = (0.3, 1.2)  # m above the floor where seats, beds and tables hold level surfaces facing up
+ROOM_HEIGHT_M = (1.2, 4.0)  # a room's height (or its walls' where the scan ends low)
+LOWEST_RATIO = 0.85  # the up axis's extent is below this share of the next-lowest axis's
 MIN_SIGN_MARGIN = 0.2  # |sign evidence|, which lies in [-3, 3]
 
 _COS, _SIN = math.cos(math.radians(PAR_DEG)), math.sin(math.radians(PAR_DEG))
@@ -85,8 +97,9 @@ class GravityEstimate:
     floor_share: float  # share of the surface area in the floor layer
     wall_share: float  # share of the surface area within PAR_DEG of vertical
     floor_spread_deg: float  # area-weighted RMS angle of the floor normals about `up`
-    axis_margin: float  # relative lead of the up axis over the next candidate axis
+    axis_margin: float  # relative lead of the up axis's level area over the next candidate axis
     sign_margin: float  # |evidence| for the sign (0: a coin toss)
+    cues: dict  # which axis each cue names (index into `axes` order: up first), and its figures
     snapped: str | None  # "z", "-y", ...: `up` is exactly that file axis
     reason: str  # why it is uncertain; "" when confident
 
@@ -98,7 +111,8 @@ class GravityEstimate:
         return {"up": [round(float(x), 5) for x in self.up], "confidence": self.label,
                 "floor_share": round(self.floor_share, 4), "wall_share": round(self.wall_share, 4),
                 "floor_spread_deg": round(self.floor_spread_deg, 3), "axis_margin": round(self.axis_margin, 4),
-                "sign_margin": round(self.sign_margin, 4), "snapped": self.snapped, "reason": self.reason}
+                "sign_margin": round(self.sign_margin, 4), "cues": self.cues, "snapped": self.snapped,
+                "reason": self.reason}
 
 
 def rotation_to_z(up, wall: np.ndarray | None = None) -> np.ndarray:
@@ -163,19 +177,27 @@ def estimate_up(vertices: np.ndarray, faces: np.ndarray, unit_scale: float = 1.0
     a2 = _refine(n, w, a2, across=a1)
     axes = [a1, a2, np.cross(a1, a2)]
 
-    # 2. the up axis: most horizontal area, plus vertical area at other headings than the walls
+    # 2. the up axis: three cues vote (the module docstring); the level area breaks a tie
     dots = np.abs(n @ np.stack(axes, axis=1))  # (F, 3)
     par = dots > _COS
     off = [(dots[:, k] < _SIN) & ~par[:, [j for j in range(3) if j != k]].any(axis=1) for k in range(3)]
     score = np.array([w[par[:, k]].sum() + w[off[k]].sum() for k in range(3)])
     order = np.argsort(score)[::-1]
-    k = int(order[0])
-    axis_margin = float((score[k] - score[order[1]]) / max(score[k], 1e-12))
+    axis_margin = float((score[order[0]] - score[order[1]]) / max(score[order[0]], 1e-12))
+    support = np.array([[_support(n, w, v, centers, sgn * a, unit_scale) for sgn in (1.0, -1.0)] for a in axes])
+    extent = np.array([float(np.ptp(v @ a)) * unit_scale for a in axes])
+    low = np.argsort(extent)
+    votes = {"level area": int(order[0]), "support surfaces": int(np.argmax(support.max(axis=1)))}
+    if ROOM_HEIGHT_M[0] <= extent[low[0]] <= ROOM_HEIGHT_M[1] and extent[low[0]] < LOWEST_RATIO * extent[low[1]]:
+        votes["lowest extent"] = int(low[0])
+    count = np.bincount(list(votes.values()), minlength=3)
+    k = int(order[0]) if count[order[0]] == count.max() else int(np.argmax(count))
+    agree = sorted(name for name, j in votes.items() if j == k)
     up = _refine_up(n, w, axes[k])
     walls = [axes[j] for j in range(3) if j != k]
     wall = max(walls, key=lambda a: float(w[np.abs(n @ a) > _COS].sum()))
 
-    # 3. the sign: the floor layer at the bottom, the room's level surfaces low above it
+    # 3. the sign: the floor layer at the bottom, the room's level surfaces low above it and facing up
     s = n @ up
     h = centers @ up
     hv = v @ up
@@ -187,16 +209,23 @@ def estimate_up(vertices: np.ndarray, faces: np.ndarray, unit_scale: float = 1.0
     mid = flat & ~bot & ~top
     wb, wt, wm = float(w[bot].sum()), float(w[top].sum()), float(w[mid].sum())
     ends = (wb - wt) / (wb + wt) if wb + wt > 0 else 0.0
-    low = 1.0 - 2.0 * float(np.average(t[mid], weights=w[mid])) if wm > 0 else 0.0
+    low_mid = 1.0 - 2.0 * float(np.average(t[mid], weights=w[mid])) if wm > 0 else 0.0
     orient = ((w[bot & (s > 0)].sum() + w[top & (s < 0)].sum() - w[bot & (s < 0)].sum() - w[top & (s > 0)].sum())
               / (wb + wt) if wb + wt > 0 else 0.0)
     seen_from_above = (w[mid & (s > 0)].sum() - w[mid & (s < 0)].sum()) / wm if wm > 0 else 0.0
     oriented = float(orient * seen_from_above) if abs(orient) > ORIENTED else 0.0
-    evidence = ends + low + oriented
+    up_side = _support(n, w, v, centers, up, unit_scale), _support(n, w, v, centers, -up, unit_scale)
+    supported = (up_side[0] - up_side[1]) / sum(up_side) if sum(up_side) > 0 else 0.0
+    evidence = ends + low_mid + oriented + supported
     if evidence < 0:
         up, s, t = -up, -s, 1.0 - t
     sign_margin = abs(evidence)
-    disagree = ends * low < 0 and min(abs(ends), abs(low)) > 0.3
+    disagree = ends * low_mid < 0 and min(abs(ends), abs(low_mid)) > 0.3 and abs(supported) < 0.5
+    cues = {"axis": {name: ("up" if j == k else "other") for name, j in votes.items()},
+            "support_share": round(float(support[k].max()), 4),
+            "extent_m": [round(float(extent[k]), 3)] + [round(float(extent[j]), 3) for j in range(3) if j != k],
+            "sign": {"ends": round(float(ends), 3), "low_level_area": round(float(low_mid), 3),
+                     "winding": round(oriented, 3), "support": round(float(supported), 3)}}
 
     # confidence: how much floor + walls explain, how level the floor is, a room-sized extent
     bot = (np.abs(s) > _COS) & (t < LAYER)  # the floor layer
@@ -218,8 +247,8 @@ def estimate_up(vertices: np.ndarray, faces: np.ndarray, unit_scale: float = 1.0
         (floor_share + wall_share >= MIN_EXPLAINED,
          f"floor and walls explain {floor_share + wall_share:.0%} of the area"),
         (spread <= MAX_SPREAD_DEG, f"the floor normals spread {spread:.1f} deg"),
-        (axis_margin >= MIN_AXIS_MARGIN,
-         f"another axis holds almost as much level area (margin {axis_margin:.2f})"),
+        (len(agree) >= 2, "the cues name different up axes (" + ", ".join(
+            f"{name}: {'this axis' if j == k else 'another'}" for name, j in votes.items()) + ")"),
         (sign_margin >= MIN_SIGN_MARGIN and not disagree,
          f"floor and ceiling are hard to tell apart (margin {sign_margin:.2f})"),
     ]
@@ -234,7 +263,16 @@ def estimate_up(vertices: np.ndarray, faces: np.ndarray, unit_scale: float = 1.0
     R = AXIS_ROTATIONS[snapped].copy() if snapped else rotation_to_z(up, wall - (wall @ up) * up)
     return GravityEstimate(up=up, rotation=R, confident=confident, floor_share=floor_share,
                            wall_share=wall_share, floor_spread_deg=spread, axis_margin=axis_margin,
-                           sign_margin=sign_margin, snapped=snapped, reason="; ".join(failed))
+                           sign_margin=sign_margin, cues=cues, snapped=snapped, reason="; ".join(failed))
+
+
+def _support(n: np.ndarray, w: np.ndarray, v: np.ndarray, centers: np.ndarray, up: np.ndarray,
+             unit_scale: float) -> float:
+    """Share of the area in level faces facing `up` at SUPPORT_M above the scan's bottom along it: the
+    seats, beds and table tops furniture holds up, seen from above."""
+    h = (centers @ up - float((v @ up).min())) * unit_scale
+    facing = n @ up > math.cos(math.radians(SIGN_DEG))
+    return float(w[facing & (h >= SUPPORT_M[0]) & (h <= SUPPORT_M[1])].sum())
 
 
 def _refine(n: np.ndarray, w: np.ndarray, a: np.ndarray, across: np.ndarray | None = None) -> np.ndarray:
@@ -271,4 +309,5 @@ def _refine_up(n: np.ndarray, w: np.ndarray, a: np.ndarray) -> np.ndarray:
 
 def _uncertain(up: np.ndarray, reason: str) -> GravityEstimate:
     return GravityEstimate(up=up, rotation=np.eye(3), confident=False, floor_share=0.0, wall_share=0.0,
-                           floor_spread_deg=90.0, axis_margin=0.0, sign_margin=0.0, snapped=None, reason=reason)
+                           floor_spread_deg=90.0, axis_margin=0.0, sign_margin=0.0, cues={}, snapped=None,
+                           reason=reason)

@@ -86,10 +86,10 @@ def _check_size(scene: Scene, path: Path, unit_scale: float) -> None:
     extent = np.ptp(scene.vertices, axis=0)
     if float(extent.max()) <= MAX_EXTENT_M:
         return
-    height = float(extent[2])
-    fits = [scale for scale in UNIT_GUESSES if ROOM_HEIGHT_M[0] <= height * scale <= ROOM_HEIGHT_M[1]]
-    guess = (f"with scene.unit_scale = {unit_scale * fits[0]:g} it is {height * fits[0]:.2f} m tall" if fits
-             else "set scene.unit_scale to the file's unit in metres")
+    side = float(extent.min())  # a room's smallest side is about its height, whichever way the file is up
+    fits = [scale for scale in UNIT_GUESSES if ROOM_HEIGHT_M[0] <= side * scale <= ROOM_HEIGHT_M[1]]
+    guess = (f"with scene.unit_scale = {unit_scale * fits[0]:g} its smallest side is {side * fits[0]:.2f} m, a room's "
+             "height" if fits else "set scene.unit_scale to the file's unit in metres")
     raise SceneError(f"scene {path} spans {float(extent.max()):.0f} m ({' x '.join(f'{x:.0f}' for x in extent)} m at "
                      f"scene.unit_scale = {unit_scale:g}), more than any room: its coordinates are likely in "
                      f"another unit; {guess}")
