@@ -24,7 +24,7 @@ import numpy as np
 
 from flightrecon.config import ScenarioConfig
 from flightrecon.errors import SceneError
-from flightrecon.scene.free_space import FreeSpace, largest_free_space
+from flightrecon.scene.free_space import FreeSpace, largest_free_space, room_free_space
 from flightrecon.scene.surface_distance import SurfaceDistance
 from flightrecon.scene.types import Scene
 
@@ -32,6 +32,7 @@ GRID = 0.1  # m between candidate hover points
 CLIMB_STEP = 0.01  # m between checked points of a climb
 FLOOR_TOLERANCE = 0.05  # m the floor may lie above its detected height (scan noise, rugs)
 PLANNER_SLACK = 1.5  # planner voxels (planner.voxel_size) the hover point keeps beyond the required clearance
+MIN_ROOM_SHARE = 0.5  # the default point's own region is the room when it holds this share of the largest
 CHUNK = 256  # candidates whose climbs are checked in one query
 KEYS = ("Change sim.takeoff_height, drone.body_radius, planner.safety_margin, planner.voxel_size or "
         "planner.max_height, or check scene.up_axis (or scene.up_vector) and scene.unit_scale (`flightrecon scene "
@@ -94,6 +95,19 @@ class _Checker:
         return ""
 
 
+def _room(scene: Scene, default: np.ndarray, box: np.ndarray) -> FreeSpace:
+    """The room's free space: the empty region around the default hover point, unless that is a small
+    pocket (inside a cabinet) or the point is in the surface; then the region that fills the room's
+    box. A turned open scan leaves empty corners of its box outside the walls, which the largest
+    region may be, so the default's own region comes first."""
+    largest = largest_free_space(scene, box)
+    try:
+        around = room_free_space(scene, default)
+    except ValueError:  # the default point is in a surface voxel
+        return largest
+    return around if around.volume_m3 >= MIN_ROOM_SHARE * largest.volume_m3 else largest
+
+
 def _axis(center: float, lo: float, hi: float) -> np.ndarray:
     """Integer GRID steps from `center` (as numbers of steps) that stay within [lo, hi]."""
     return np.arange(np.ceil((lo - center) / GRID - 1e-9), np.floor((hi - center) / GRID + 1e-9) + 1)
@@ -118,7 +132,7 @@ def safe_takeoff(scene: Scene, cfg: ScenarioConfig, default: np.ndarray, room: n
     point is safe."""
     default, workspace = np.asarray(default, float), np.asarray(workspace, float)
     floor_z = float(default[2] - cfg.sim.takeoff_height)
-    free = largest_free_space(scene, np.asarray(room, float))
+    free = _room(scene, default, np.asarray(room, float))
     check = _Checker(scene, cfg, free, floor_z)
     why = check.why_not(default)
     hover = default if not why else _nearest_safe(check, _candidates(default, workspace))

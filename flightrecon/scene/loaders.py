@@ -74,23 +74,23 @@ def load_scene(path: str | os.PathLike, unit_scale: float = 1.0, up_axis: str = 
                   face_colors=d.get("face_colors"), uv=d.get("uv"), texture=d.get("texture"),
                   vertex_normals=d.get("vertex_normals"), source=path, source_up_axis=up_axis, meta=meta)
     validate(scene, path)
+    _check_size(scene, path, unit_scale)
     R = _orientation(scene, path, unit_scale, up_axis, up_vector, rotation_deg)
     _to_world(scene, unit_scale, R)
-    _check_size(scene, path, unit_scale)
     return scene
 
 
 def _check_size(scene: Scene, path: Path, unit_scale: float) -> None:
     """Refuse a scene far larger than any room (almost always a file in millimetres or centimetres read
     as metres), naming the scale that gives it a room's height, before anything sized by it is built."""
-    extent = np.ptp(scene.vertices, axis=0)
+    extent = np.ptp(scene.vertices, axis=0) * unit_scale
     if float(extent.max()) <= MAX_EXTENT_M:
         return
     side = float(extent.min())  # a room's smallest side is about its height, whichever way the file is up
     fits = [scale for scale in UNIT_GUESSES if ROOM_HEIGHT_M[0] <= side * scale <= ROOM_HEIGHT_M[1]]
     guess = (f"with scene.unit_scale = {unit_scale * fits[0]:g} its smallest side is {side * fits[0]:.2f} m, a room's "
              "height" if fits else "set scene.unit_scale to the file's unit in metres")
-    raise SceneError(f"scene {path} spans {float(extent.max()):.0f} m ({' x '.join(f'{x:.0f}' for x in extent)} m at "
+    raise SceneError(f"scene {path} spans {float(extent.max()):.0f} m ({' x '.join(f'{x:.0f}' for x in extent)} m, file axes, at "
                      f"scene.unit_scale = {unit_scale:g}), more than any room: its coordinates are likely in "
                      f"another unit; {guess}")
 
