@@ -5,7 +5,8 @@ guess that furnished scans break: it lands in a sofa, under a table, or outside 
 L-shaped flat. A take-off is safe when every point of the climb from where the drone rests on the
 floor up to the hover point keeps the required clearance (drone.body_radius +
 planner.safety_margin) to the scene's true surface (scene.surface_distance), and the hover point lies
-in the room's free space (the connected empty region that fills the room's box), from which the
+in the room's free space (scene.free_space.room_for_takeoff: the empty region around the default point,
+or the one that fills the room's box), from which the
 drone can reach what it is to map. Near the floor the floor itself may come closer (the drone starts
 resting on it): there the requirement is the height over the floor less FLOOR_TOLERANCE, so only
 something else near the drone counts. The hover point keeps PLANNER_SLACK planner voxels more: the
@@ -24,7 +25,7 @@ import numpy as np
 
 from flightrecon.config import ScenarioConfig
 from flightrecon.errors import SceneError
-from flightrecon.scene.free_space import FreeSpace, largest_free_space, room_free_space
+from flightrecon.scene.free_space import FreeSpace, room_for_takeoff
 from flightrecon.scene.surface_distance import SurfaceDistance
 from flightrecon.scene.types import Scene
 
@@ -32,7 +33,6 @@ GRID = 0.1  # m between candidate hover points
 CLIMB_STEP = 0.01  # m between checked points of a climb
 FLOOR_TOLERANCE = 0.05  # m the floor may lie above its detected height (scan noise, rugs)
 PLANNER_SLACK = 1.5  # planner voxels (planner.voxel_size) the hover point keeps beyond the required clearance
-MIN_ROOM_SHARE = 0.5  # the default point's own region is the room when it holds this share of the largest
 CHUNK = 256  # candidates whose climbs are checked in one query
 KEYS = ("Change sim.takeoff_height, drone.body_radius, planner.safety_margin, planner.voxel_size or "
         "planner.max_height, or check scene.up_axis (or scene.up_vector) and scene.unit_scale (`flightrecon scene "
@@ -95,19 +95,6 @@ class _Checker:
         return ""
 
 
-def _room(scene: Scene, default: np.ndarray, box: np.ndarray) -> FreeSpace:
-    """The room's free space: the empty region around the default hover point, unless that is a small
-    pocket (inside a cabinet) or the point is in the surface; then the region that fills the room's
-    box. A turned open scan leaves empty corners of its box outside the walls, which the largest
-    region may be, so the default's own region comes first."""
-    largest = largest_free_space(scene, box)
-    try:
-        around = room_free_space(scene, default)
-    except ValueError:  # the default point is in a surface voxel
-        return largest
-    return around if around.volume_m3 >= MIN_ROOM_SHARE * largest.volume_m3 else largest
-
-
 def _axis(center: float, lo: float, hi: float) -> np.ndarray:
     """Integer GRID steps from `center` (as numbers of steps) that stay within [lo, hi]."""
     return np.arange(np.ceil((lo - center) / GRID - 1e-9), np.floor((hi - center) / GRID + 1e-9) + 1)
@@ -128,11 +115,11 @@ def safe_takeoff(scene: Scene, cfg: ScenarioConfig, default: np.ndarray, room: n
                  workspace: np.ndarray) -> TakeOff:
     """The take-off from `default` (the hover point over the spawn) if it is safe, else from the
     nearest safe hover point in `workspace` (the box candidate viewpoints lie in); `room` is the
-    room's box, whose largest free region is the room's free space. Raises SceneError when no hover
-    point is safe."""
+    room's box (free_space.room_for_takeoff finds the room's free space in it). Raises SceneError when
+    no hover point is safe."""
     default, workspace = np.asarray(default, float), np.asarray(workspace, float)
     floor_z = float(default[2] - cfg.sim.takeoff_height)
-    free = _room(scene, default, np.asarray(room, float))
+    free = room_for_takeoff(scene, default, np.asarray(room, float))
     check = _Checker(scene, cfg, free, floor_z)
     why = check.why_not(default)
     hover = default if not why else _nearest_safe(check, _candidates(default, workspace))

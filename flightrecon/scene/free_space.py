@@ -30,6 +30,7 @@ from flightrecon.scene.types import Scene
 
 PITCH = 0.03  # m, voxel of the free space the evaluation uses
 HOLE_RADIUS = 0.35  # m: holes up to 0.7 m across are closed (scan holes), doorways stay open
+MIN_ROOM_SHARE = 0.5  # a take-off point's own region is the room when it holds this share of the other
 
 
 @dataclass(frozen=True)
@@ -59,36 +60,52 @@ def room_free_space(scene: Scene, seed_point: np.ndarray, pitch: float = PITCH,
                     hole_radius: float = HOLE_RADIUS) -> FreeSpace:
     """The room around `seed_point` (the take-off point) at voxel size `pitch` (m)."""
     occ, origin = surface_voxels(scene, pitch)
-    seed = tuple(np.floor((np.asarray(seed_point, float) - origin) / pitch).astype(np.int64))
-    return _room(scene, occ, origin, pitch, seed, hole_radius, seed_point)
+    return _room(scene, occ, origin, pitch, _voxel(seed_point, origin, pitch), hole_radius, seed_point)
 
 
-def largest_free_space(scene: Scene, box: np.ndarray, pitch: float = PITCH,
-                       hole_radius: float = HOLE_RADIUS) -> FreeSpace:
-    """The room found without a point in it, to choose the take-off point by (the default one may lie
-    in furniture or outside the walls): the connected empty region that fills most of `box` (2, 3),
-    the room's box, bounded as `room_free_space` bounds it from its most open voxel. Empty when the
-    box holds no empty voxel."""
+def room_for_takeoff(scene: Scene, point: np.ndarray, box: np.ndarray, pitch: float = PITCH,
+                     hole_radius: float = HOLE_RADIUS) -> FreeSpace:
+    """The room to choose a take-off point in: the empty region around `point` (the default hover
+    point), unless the point lies in the surface or its region is a pocket (a cabinet's inside, under
+    MIN_ROOM_SHARE of the other); then the region found without a point: the connected empty region
+    that fills most of `box` (2, 3), the room's box, bounded as `room_free_space` bounds it from its
+    most open voxel (empty when the box holds no empty voxel). A turned open scan leaves empty corners
+    of its box outside the walls, which that region may be, so the point's own region comes first."""
     occ, origin = surface_voxels(scene, pitch)
-    labels, _ = ndimage.label(~occ)
-    in_box = _within(np.asarray(box, float), origin, pitch, occ.shape) & (labels > 0)
-    counts = np.bincount(labels[in_box], minlength=1)
+    empty, _ = ndimage.label(~occ)
+    largest = _largest_room(scene, occ, origin, pitch, empty, np.asarray(box, float), hole_radius)
+    try:
+        around = _room(scene, occ, origin, pitch, _voxel(point, origin, pitch), hole_radius, point, empty)
+    except ValueError:  # the point is in a surface voxel
+        return largest
+    return around if around.volume_m3 >= MIN_ROOM_SHARE * largest.volume_m3 else largest
+
+
+def _largest_room(scene: Scene, occ: np.ndarray, origin: np.ndarray, pitch: float, empty: np.ndarray,
+                  box: np.ndarray, hole_radius: float) -> FreeSpace:
+    """The room that fills most of `box`, from the labels `empty` of the empty voxels (`room_for_takeoff`)."""
+    in_box = _within(box, origin, pitch, occ.shape) & (empty > 0)
+    counts = np.bincount(empty[in_box], minlength=1)
     if counts.max(initial=0) == 0:
         return FreeSpace(np.zeros(occ.shape, bool), origin, pitch)
     # its most open voxel within the scan's extent, which bounding an open scan keeps
-    region = in_box & (labels == int(np.argmax(counts))) & _within(scene.bounds, origin, pitch, occ.shape)
+    region = in_box & (empty == int(np.argmax(counts))) & _within(scene.bounds, origin, pitch, occ.shape)
     if not region.any():
         return FreeSpace(np.zeros(occ.shape, bool), origin, pitch)
     clearance = np.where(region, ndimage.distance_transform_edt(~occ), -1.0)
     seed = tuple(int(i) for i in np.unravel_index(int(np.argmax(clearance)), occ.shape))
-    return _room(scene, occ, origin, pitch, seed, hole_radius, origin + (np.array(seed) + 0.5) * pitch)
+    return _room(scene, occ, origin, pitch, seed, hole_radius, origin + (np.array(seed) + 0.5) * pitch, empty)
+
+
+def _voxel(point: np.ndarray, origin: np.ndarray, pitch: float) -> tuple:
+    return tuple(np.floor((np.asarray(point, float) - origin) / pitch).astype(np.int64))
 
 
 def _room(scene: Scene, occ: np.ndarray, origin: np.ndarray, pitch: float, seed: tuple, hole_radius: float,
-          seed_point) -> FreeSpace:
-    """The empty region holding voxel `seed`; bounded by the scan's extent and its holes closed when
-    it reaches the grid's edge (the module docstring)."""
-    room = _component(~occ, seed, scene.name, seed_point)
+          seed_point, empty: np.ndarray | None = None) -> FreeSpace:
+    """The empty region holding voxel `seed` (`empty`: the labels of ~occ, if already made); bounded by
+    the scan's extent and its holes closed when it reaches the grid's edge (the module docstring)."""
+    room = _component(~occ, seed, scene.name, seed_point, empty)
     if not _touches_edge(room):
         return FreeSpace(room, origin, pitch, enclosed=True)
     free = ~occ & _within(scene.bounds, origin, pitch, occ.shape)
@@ -96,10 +113,12 @@ def _room(scene: Scene, occ: np.ndarray, origin: np.ndarray, pitch: float, seed:
     return FreeSpace(room, origin, pitch, enclosed=False)
 
 
-def _component(free: np.ndarray, seed: tuple, name: str, seed_point) -> np.ndarray:
-    """The connected region of `free` that holds voxel `seed`."""
+def _component(free: np.ndarray, seed: tuple, name: str, seed_point,
+               labels: np.ndarray | None = None) -> np.ndarray:
+    """The connected region of `free` that holds voxel `seed` (`labels`: those of `free`, if made)."""
     inside = all(0 <= i < n for i, n in zip(seed, free.shape))
-    labels, _ = ndimage.label(free)
+    if labels is None:
+        labels, _ = ndimage.label(free)
     if not inside or labels[seed] == 0:
         raise ValueError(f"the take-off point {np.round(seed_point, 3).tolist()} is not in the free space of "
                          f"scene '{name}': move the scene's spawn or set sim.takeoff_height")
