@@ -225,7 +225,7 @@ def test_rendered_depth_is_z_depth_and_colour_is_the_surface_colour():
     wall.apply_translation([2.05, 0, 0])
     colors = np.tile([[200, 100, 50]], (len(wall.vertices), 1)).astype(np.uint8)
     sensor = Sensor(width=32, height=24)
-    cam = RaycastCamera(wall.vertices, wall.faces, colors, sensor)
+    cam = RaycastCamera(wall, colors, sensor)
     depth, rgb, cos = cam.render(camera_pose(np.zeros(3), 0.0))
     np.testing.assert_allclose(depth, 2.0, atol=1e-5)
     np.testing.assert_allclose(rgb, np.broadcast_to([200 / 255, 100 / 255, 50 / 255], rgb.shape), atol=1e-5)

@@ -18,6 +18,7 @@ import numpy as np
 
 from flightrecon.geometry import camera_pose, intrinsics, make_pose, pixel_rays, rot_z
 from flightrecon.open3d_import import open3d_module
+from flightrecon.scene.surface_distance import SurfaceDistance
 
 
 @dataclass(frozen=True)
@@ -69,12 +70,10 @@ def handheld_walk(center: np.ndarray, half_extent: np.ndarray, frames: int, rng:
 class RaycastCamera:
     """Exact depth and colour of a mesh with vertex colours, seen by a `Sensor` at poses T_wc."""
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray, vertex_colors: np.ndarray, sensor: Sensor) -> None:
-        o3d = open3d_module()
-        self._scene = o3d.t.geometry.RaycastingScene()
-        self._scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
-                                  o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)))
-        self.faces = np.asarray(faces, np.int64)
+    def __init__(self, mesh, vertex_colors: np.ndarray, sensor: Sensor) -> None:
+        """`mesh`: anything with vertices and faces (a Scene, a trimesh)."""
+        self.surface = SurfaceDistance(mesh)  # one BVH for the rays and for clearance
+        self.faces = np.asarray(mesh.faces, np.int64)
         self.colors = np.asarray(vertex_colors, np.float64) / 255.0
         self.sensor = sensor
         self._rays = pixel_rays(sensor.width, sensor.height, sensor.K).reshape(-1, 3)  # z = 1: t is z-depth
@@ -85,7 +84,7 @@ class RaycastCamera:
         o3d = open3d_module()
         dirs = self._rays @ T_wc[:3, :3].T
         rays = np.concatenate([np.broadcast_to(T_wc[:3, 3], dirs.shape), dirs], 1).astype(np.float32)
-        hit = self._scene.cast_rays(o3d.core.Tensor(rays))
+        hit = self.surface.raycasting_scene().cast_rays(o3d.core.Tensor(rays))
         depth = hit["t_hit"].numpy().astype(np.float64)
         ok = np.isfinite(depth)
         ids = np.where(ok, hit["primitive_ids"].numpy(), 0).astype(np.int64)
@@ -99,9 +98,7 @@ class RaycastCamera:
 
     def clearance(self, points: np.ndarray) -> np.ndarray:
         """Distance (m) from each point (N, 3) to the nearest triangle (the same BVH the rays use)."""
-        o3d = open3d_module()
-        query = o3d.core.Tensor(np.ascontiguousarray(points, np.float32))
-        return self._scene.compute_distance(query).numpy().astype(np.float64)
+        return self.surface.distance(points)
 
 
 def sensor_depth(depth: np.ndarray, cos: np.ndarray, sensor: Sensor, rng: np.random.Generator) -> np.ndarray:

@@ -150,7 +150,7 @@ def scanify(scene: Scene, options: ScanOptions | None = None, seed: int = 0) -> 
     """A hand-held scan of the z-up `scene` (meters) as `options` ask; deterministic in (scene, seed, options)."""
     options = options or ScanOptions()
     subject = scan_subject(scene, options, seed)
-    camera = RaycastCamera(subject.vertices, subject.faces, _colors(subject), options.sensor)
+    camera = RaycastCamera(subject, _colors(subject), options.sensor)
     poses = _walk(camera, subject, options, seed)
     vertices, faces, colors = _canonical(*_fuse(camera, poses, options, _rng("sensor", scene.name, seed)))
     top = _crop_height(scene, options)

@@ -28,7 +28,8 @@ class SurfaceDistance:
     def __getstate__(self) -> dict:
         return {"vertices": self.vertices, "faces": self.faces, "_scene": None}
 
-    def _raycasting_scene(self):
+    def raycasting_scene(self):
+        """The mesh's Open3D RaycastingScene (built on first use): for rays cast at the same triangles."""
         if self._scene is None:
             o3d = open3d_module()
             scene = o3d.t.geometry.RaycastingScene()
@@ -44,5 +45,5 @@ class SurfaceDistance:
         if ok.any():
             o3d = open3d_module()
             q = o3d.core.Tensor(np.ascontiguousarray(p[ok], np.float32))
-            out[ok] = self._raycasting_scene().compute_distance(q).numpy()
+            out[ok] = self.raycasting_scene().compute_distance(q).numpy()
         return out
