@@ -76,6 +76,12 @@ void bind_rasterizer(pybind11::module_& m) {
   m.def("feature_sums", &raster::feature_sums, "per-camera pixel sums of a two-sided splat feature, with a tail cut");
   m.def("candidate_rows", &raster::candidate_rows, "indices of the splats one camera may draw (its frustum test)");
   m.def("num_threads", []() { return omp_get_max_threads(); });
+  m.def("blend_ceiling", [](double seconds) {
+    const raster::CeilingProbe c = raster::blend_ceiling(seconds);
+    return std::map<std::string, double>{{"blend_per_s_thread", c.blend_per_s_thread},
+                                         {"reject_per_s_thread", c.reject_per_s_thread},
+                                         {"threads", double(c.threads)}};
+  }, "the forward blend's evaluations per second per thread where nothing is wasted (the ceiling)");
   m.def("last_stats", []() {
     return std::map<std::string, double>{
         {"project_s", g_stats.project}, {"bin_s", g_stats.bin}, {"sort_s", g_stats.sort},

@@ -26,6 +26,7 @@
 //                               reduction, chain rule to the splats' parameters, backward
 //   rasterize_fisher.cpp        the FisherRF squared mode's slots and outputs
 //   rasterize_feature_sums.cpp  per-camera sums of a two-sided splat feature (view scoring)
+//   rasterize_probe.cpp         the forward blend's ceiling on this CPU (bench map, bench render)
 //   rasterize.cpp               camera input, candidate rows and the Python bindings
 //   rasterize_torch.h           the torch-facing functions the stage files define
 #pragma once
@@ -235,5 +236,15 @@ void fisher_slot(const S (*gg)[TP], int p0, int p1, S o2, S w2, S* slot);
 // fo [N], fw [N].
 template <typename S>
 void fisher_rows(const Bins<S>& B, int G, const std::vector<S>& rows, S* fg, S* fo, S* fw);
+
+// rasterize_probe.cpp
+// Pixel-splat evaluations per second per thread of the forward blend where no group is partial and
+// the records stay in cache: when every evaluation blends, and when every one is rejected by the
+// alpha gate; measured for `seconds` in all on all threads at once.
+struct CeilingProbe {
+  double blend_per_s_thread = 0, reject_per_s_thread = 0;
+  int threads = 1;
+};
+CeilingProbe blend_ceiling(double seconds);
 
 }  // namespace raster

@@ -55,3 +55,16 @@ def test_map_command_writes_map_metrics_and_renders(dataset, tmp_path, capsys):
 def test_map_command_reports_a_missing_dataset(tmp_path, capsys):
     assert main(["map", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 2
     assert "transforms.json" in capsys.readouterr().err
+
+
+def test_bench_map_reports_the_profile_and_thread_scaling(dataset, tmp_path):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "map", "--dataset", str(dataset), "--set", "mapper.k_new=4", "--set", "mapper.k_replay=2",
+                 "--scaling", "1,2", "--scaling-iterations", "2", "--out", str(out)]) == 0
+    result = json.loads(out.read_text())
+    row = result["rows"][0]
+    assert row["ms_per_replay_iteration_1_threads"] > 0 and row["ms_per_replay_iteration_2_threads"] > 0
+    prof = result["profiles"][dataset.name]
+    assert sum(r["share"] for r in prof["stages"]) == pytest.approx(1.0)
+    assert 0 < prof["blend"]["useful_of_ceiling"] <= prof["blend"]["of_ceiling"]
+    assert result["ceiling"]["blend_per_s_thread"] > 0

@@ -6,6 +6,12 @@ Trains on a recorded dataset (a survey flight: `flightrecon fly office0 --survey
 the map.ply size scaled to 100 training frames, and (with --quality) PSNR / SSIM / depth L1 on the
 held-out views (every `--holdout`-th frame) and on the training views, plus the held-out views' share
 of pixels seen by a training view (`test_coverage`) and PSNR / depth L1 on those pixels alone.
+
+The profile splits the mapping time into its stages (flightrecon.profiling: splat axes, projection,
+binning, forward and backward blend, loss terms, SSIM, depth normals, optimizer step, view setup,
+densify, prune), each as ms per iteration or per frame and as a share of all mapping time, and puts
+the forward blend's throughput next to this CPU's ceiling, probed in the same run
+(`blend_ceiling`). `--scaling 1,2` then times iterations on the trained map at each thread count.
 """
 
 from __future__ import annotations
@@ -13,16 +19,20 @@ from __future__ import annotations
 import argparse
 import statistics
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from flightrecon import profiling
 from flightrecon.config import load_config
 from flightrecon.dataset import load_dataset
+from flightrecon.fileio import write_json
 from flightrecon.mapping.offline import evaluate_view, masked_metrics, train_on_dataset, training_coverage
 from flightrecon.mapping.ply import save_map
 from flightrecon.metric_defs import mean_metrics
+from flightrecon.render.extension import load
 
 from flightrecon.bench.common import report
 
@@ -36,6 +46,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=None, help="use only the first N frames of each dataset")
     p.add_argument("--holdout", type=int, default=5)
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads")
+    p.add_argument("--scaling", default="1,2",
+                   help="thread counts at which iterations on the trained map are timed ('' for none)")
+    p.add_argument("--scaling-iterations", type=int, default=20)
     p.add_argument("--quality", action="store_true", help="also render and score every view after training")
     p.add_argument("--scenario", default=None,
                    help="take the mapper settings of this scenario (e.g. default, the CPU default); "
@@ -49,13 +62,18 @@ def run(args: argparse.Namespace) -> dict:
         raise SystemExit("bench map: give --dataset DIR (record one with `flightrecon fly office0 --survey`)")
     torch.set_num_threads(args.threads)
     cfg = load_config(args.scenario, args.overrides)
-    rows = []
+    ceiling = load().blend_ceiling(1.0)
+    rows, profiles = [], {}
     for path in args.dataset:
         ds = load_dataset(path)
-        res = train_on_dataset(ds, cfg, args.holdout, args.frames)
+        with profiling.profiling() as prof:
+            res = train_on_dataset(ds, cfg, args.holdout, args.frames)
+        name = Path(path).name
+        profiles[name] = {"stages": profiling.breakdown(prof, len(res.train)),
+                          "blend": profiling.blend_rates(prof, ceiling, args.threads)}
         with tempfile.TemporaryDirectory() as tmp:
             size = save_map(res.mapper.map, Path(tmp) / "map.ply").stat().st_size
-        row = {"dataset": Path(path).name, "size": f"{ds.width}x{ds.height}", "frames": len(res.train),
+        row = {"dataset": name, "size": f"{ds.width}x{ds.height}", "frames": len(res.train),
                "k_new": cfg.mapper.k_new, "k_replay": cfg.mapper.k_replay, "threads": args.threads,
                "backend": cfg.mapper.backend, "s_per_frame_median": statistics.median(res.seconds),
                "s_per_frame_mean": float(np.mean(res.seconds)),
@@ -76,5 +94,34 @@ def run(args: argparse.Namespace) -> dict:
                                   masked_metrics(color, depth, f.rgb, f.depth, covered).items()})
                     views.append(m)
                 row.update({f"{split}_{k}": v for k, v in mean_metrics(views).items()})
+        row.update({f"ms_per_replay_iteration_{n}_threads": ms for n, ms in
+                    _scaling(res, args.scaling, args.scaling_iterations).items()})
+        torch.set_num_threads(args.threads)
         rows.append(row)
-    return report("map", rows, args.out, extra={"note": "wall times on a shared machine; see machine.cores"})
+    result = report("map", rows, None, extra={"note": "wall times on a shared machine; see machine.cores",
+                                               "ceiling": ceiling})
+    for name, prof in profiles.items():
+        print(f"\n{name}:")
+        report("map-profile", prof["stages"], None, extra={"blend": prof["blend"]})
+    result["profiles"] = profiles
+    if args.out:
+        write_json(args.out, result)
+    return result
+
+
+def _scaling(res, spec: str, iterations: int) -> dict[int, float]:
+    """Median ms of one replay iteration (`refine(1)`: a stored frame, its view setup, one step) on the
+    trained map, per thread count. The replay draws are the mapper's own, so every count sees
+    different frames: the medians compare, single samples do not."""
+    counts = [int(c) for c in spec.split(",") if c.strip()]
+    out = {}
+    for n in counts if res.mapper.frames else []:
+        torch.set_num_threads(n)
+        res.mapper.refine(2)  # warm up at this thread count
+        samples = []
+        for _ in range(iterations):
+            t0 = time.perf_counter()
+            res.mapper.refine(1)
+            samples.append(time.perf_counter() - t0)
+        out[n] = 1e3 * statistics.median(samples)
+    return out

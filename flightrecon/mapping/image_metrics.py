@@ -14,6 +14,7 @@ import functools
 import torch
 import torch.nn.functional as F
 
+from flightrecon import profiling
 from flightrecon.metric_defs import PSNR_MAX_DB
 from flightrecon.render import load_extension
 
@@ -65,29 +66,31 @@ class _SSIMAgainst(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, pa, b, mu_b, var_b_c2, sigma, radius):
-        mu_a, aa, ab = _blur(torch.cat([pa, pa * pa, pa * b]), sigma, radius).chunk(3)
-        a1 = 2 * mu_a * mu_b + _C1
-        a2 = 2 * (ab - mu_a * mu_b) + _C2
-        b1 = mu_a * mu_a + mu_b * mu_b + _C1
-        b2 = aa - mu_a * mu_a + var_b_c2
-        inv = 1.0 / (b1 * b2)
-        s = a1 * a2 * inv
-        ctx.save_for_backward(pa, b, mu_a, mu_b, a1, a2, b1, b2, inv, s)
-        ctx.meta = (sigma, radius)
-        return s.mean()
+        with profiling.stage("ssim"):
+            mu_a, aa, ab = _blur(torch.cat([pa, pa * pa, pa * b]), sigma, radius).chunk(3)
+            a1 = 2 * mu_a * mu_b + _C1
+            a2 = 2 * (ab - mu_a * mu_b) + _C2
+            b1 = mu_a * mu_a + mu_b * mu_b + _C1
+            b2 = aa - mu_a * mu_a + var_b_c2
+            inv = 1.0 / (b1 * b2)
+            s = a1 * a2 * inv
+            ctx.save_for_backward(pa, b, mu_a, mu_b, a1, a2, b1, b2, inv, s)
+            ctx.meta = (sigma, radius)
+            return s.mean()
 
     @staticmethod
     def backward(ctx, grad):
-        pa, b, mu_a, mu_b, a1, a2, b1, b2, inv, s = ctx.saved_tensors
-        sigma, radius = ctx.meta
-        g = grad / s.numel()
-        d_mu = (2 * mu_b * (a2 - a1) * inv - 2 * mu_a * s * (1.0 / b1 - 1.0 / b2)) * g
-        d_aa = -s / b2 * g
-        d_ab = 2 * a1 * inv * g
-        r = 2 * radius  # the transposed 'valid' filter is the 'full' one: pad by the kernel width - 1
-        full = _blur(F.pad(torch.cat([d_mu, d_aa, d_ab]), (r, r, r, r)), sigma, radius)
-        g_mu, g_aa, g_ab = full.chunk(3)
-        return g_mu + 2 * pa * g_aa + b * g_ab, None, None, None, None, None
+        with profiling.stage("ssim backward"):
+            pa, b, mu_a, mu_b, a1, a2, b1, b2, inv, s = ctx.saved_tensors
+            sigma, radius = ctx.meta
+            g = grad / s.numel()
+            d_mu = (2 * mu_b * (a2 - a1) * inv - 2 * mu_a * s * (1.0 / b1 - 1.0 / b2)) * g
+            d_aa = -s / b2 * g
+            d_ab = 2 * a1 * inv * g
+            r = 2 * radius  # the transposed 'valid' filter is the 'full' one: pad by the kernel width - 1
+            full = _blur(F.pad(torch.cat([d_mu, d_aa, d_ab]), (r, r, r, r)), sigma, radius)
+            g_mu, g_aa, g_ab = full.chunk(3)
+            return g_mu + 2 * pa * g_aa + b * g_ab, None, None, None, None, None
 
 
 class SSIMTarget:

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from flightrecon import profiling
 from flightrecon.mapping.image_metrics import SSIMTarget
 from flightrecon.render import load_extension
 
@@ -47,13 +48,15 @@ class _DepthNormalsCPU(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, depth, rays):
-        ctx.save_for_backward(depth, rays)
-        return load_extension().depth_normals(depth, rays)
+        with profiling.stage("depth normals"):
+            ctx.save_for_backward(depth, rays)
+            return load_extension().depth_normals(depth, rays)
 
     @staticmethod
     def backward(ctx, grad):
-        depth, rays = ctx.saved_tensors
-        return load_extension().depth_normals_backward(depth, rays, grad.contiguous()), None
+        with profiling.stage("depth normals backward"):
+            depth, rays = ctx.saved_tensors
+            return load_extension().depth_normals_backward(depth, rays, grad.contiguous()), None
 
 
 @dataclass

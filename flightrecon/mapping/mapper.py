@@ -21,6 +21,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from flightrecon import profiling
 from flightrecon.config import MapperConfig
 from flightrecon.errors import FlightReconError
 from flightrecon.geometry import pixel_rays
@@ -91,6 +92,10 @@ class OnlineMapper:
     # -- one timestep ---------------------------------------------------------------------------
     def add_frame(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> FrameStats:
         """Insert new splats from the frame and run K_new + K_replay iterations."""
+        with profiling.stage("add_frame"):
+            return self._add_frame(rgb, depth, K, T_wc)
+
+    def _add_frame(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> FrameStats:
         index = len(self.frames)
         depth = np.asarray(depth, np.float32)
         valid = splat_init.valid_depth_mask(depth, self.near, self.far)
@@ -99,12 +104,14 @@ class OnlineMapper:
             return FrameStats(index, 0, len(self.map))
         frame = compact_frame(rgb, depth, K, T_wc, valid)
         self.frames.append(frame)
-        added = self._insert(rgb, depth, K, T_wc, index)
+        with profiling.stage("densify"):
+            added = self._insert(rgb, depth, K, T_wc, index)
         self._optimize(frame, self.cfg.k_new, count_observed=True)
         self._clock += 1
         self.last_trained.append(self._clock)
         self._replay(index, self.cfg.k_replay)
-        self._prune()
+        with profiling.stage("prune"):
+            self._prune()
         return FrameStats(index, added, len(self.map))
 
     def refine(self, iterations: int) -> None:
@@ -183,23 +190,29 @@ class OnlineMapper:
         its position."""
         if iters <= 0 or len(self.map) == 0:
             return
-        target = self._target(frame)
-        H, W = target.depth.shape[:2]
-        viewmat = frame.viewmat.to(self.device)[None]
-        Ks = frame.K.to(self.device)[None]
-        rows = self._view_rows(viewmat[0], Ks[0], W, H)
-        if len(rows) == 0:
-            return
-        leaves = self.adam.gather(rows)
+        with profiling.stage("view setup"):
+            target = self._target(frame)
+            H, W = target.depth.shape[:2]
+            viewmat = frame.viewmat.to(self.device)[None]
+            Ks = frame.K.to(self.device)[None]
+            rows = self._view_rows(viewmat[0], Ks[0], W, H)
+            if len(rows) == 0:
+                return
+            leaves = self.adam.gather(rows)
         for it in range(iters):
-            out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS)
-            loss = self._loss(out, target)
-            loss.backward()
-            visible = torch.nonzero(out.radii[0] > 0, as_tuple=True)[0]
-            if count_observed and it == 0:
-                self.map["n_observed"][rows[visible]] += 1
-            self.adam.step(leaves, visible, rows)
-        self.adam.scatter(rows, leaves)
+            with profiling.stage("render"):
+                out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS)
+            with profiling.stage("loss"):
+                loss = self._loss(out, target)
+            with profiling.stage("backward"):
+                loss.backward()
+            with profiling.stage("optimizer step"):
+                visible = torch.nonzero(out.radii[0] > 0, as_tuple=True)[0]
+                if count_observed and it == 0:
+                    self.map["n_observed"][rows[visible]] += 1
+                self.adam.step(leaves, visible, rows)
+        with profiling.stage("view setup"):
+            self.adam.scatter(rows, leaves)
 
     def _view_rows(self, viewmat: torch.Tensor, K: torch.Tensor, W: int, H: int) -> torch.Tensor:
         """Increasing indices of the splats one camera may draw: the C++ kernel's own culling test on

@@ -13,6 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
+from flightrecon import profiling
 from flightrecon.render.extension import load
 
 
@@ -28,17 +29,18 @@ class SplatAxesCPU(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, quats, log_scales):
-        q, s = quats.contiguous(), log_scales.to(quats.dtype).contiguous()
-        ctx.save_for_backward(q, s)
-        return tuple(load().splat_axes_forward(q, s))
+        with profiling.stage("splat axes"):
+            q, s = quats.contiguous(), log_scales.to(quats.dtype).contiguous()
+            ctx.save_for_backward(q, s)
+            return tuple(load().splat_axes_forward(q, s))
 
     @staticmethod
     def backward(ctx, gU, gV, gn):
-        q, s = ctx.saved_tensors
-        grads = [g.contiguous() if g is not None else torch.zeros(q.shape[0], 3, dtype=q.dtype)
-                 for g in (gU, gV, gn)]
-        g_quats, g_log_scales = load().splat_axes_backward(q, s, *grads)
-        return g_quats, g_log_scales
+        with profiling.stage("splat axes backward"):
+            q, s = ctx.saved_tensors
+            grads = [g.contiguous() if g is not None else torch.zeros(q.shape[0], 3, dtype=q.dtype)
+                     for g in (gU, gV, gn)]
+            return tuple(load().splat_axes_backward(q, s, *grads))
 
 
 def splat_axes_cpu(quats: Tensor, log_scales: Tensor) -> tuple[Tensor, Tensor, Tensor]:
@@ -75,6 +77,7 @@ class RasterizeCPU(torch.autograd.Function):
         # a single camera's projection and bins, kept for the backward (which would redo them)
         ctx.cache = ext.RenderCache() if track and any(ctx.needs_input_grad[:6]) else None
         outs = ext.forward(*args, *cams, width, height, near, far, normal, depth, dist, track, ctx.cache)
+        profiling.add_kernel("forward", ext.last_stats)
         ctx.save_for_backward(*args, *cams, *outs[:9])
         ctx.meta = (width, height, near, far, normal, depth, dist)
         ctx.mark_non_differentiable(*outs[7:])
@@ -88,6 +91,7 @@ class RasterizeCPU(torch.autograd.Function):
                  for g, o in zip((gF, gA, gN, gZ, gM, gM2, gMed), fwd[:7])]
         kept = fwd[:6] + fwd[7:9]  # the kernel re-derives everything else; median is not needed
         g = load().backward(*args, *cams, *ctx.meta, kept, grads, False, ctx.cache)
+        profiling.add_kernel("backward", load().last_stats)
         ctx.cache = None  # free it now; a second backward (retain_graph) recomputes
         return (*g, None, None, None, None, None, None, None, None, None, None)
 

@@ -37,8 +37,8 @@ CSRC = resource("csrc")
 # the rasterizer is one file per pipeline stage around rasterize.h (csrc/rasterize.h lists them)
 SOURCES = [CSRC / name for name in (
     "module.cpp", "rasterize.cpp", "rasterize_project.cpp", "rasterize_bin.cpp", "rasterize_forward.cpp",
-    "rasterize_backward.cpp", "rasterize_fisher.cpp", "rasterize_feature_sums.cpp", "splat_axes.cpp",
-    "optimizer.cpp", "image_ops.cpp")]
+    "rasterize_backward.cpp", "rasterize_fisher.cpp", "rasterize_feature_sums.cpp", "rasterize_probe.cpp",
+    "splat_axes.cpp", "optimizer.cpp", "image_ops.cpp")]
 # every header the sources include: the cache key hashes them too
 HEADERS = [CSRC / name for name in ("bindings.h", "rasterize.h", "rasterize_blend.h", "rasterize_torch.h")]
 CFLAGS = ["-O3", "-march=native", "-fopenmp", "-std=c++17"]

@@ -1,0 +1,146 @@
+"""Where a mapping iteration's time goes: stage timers that `bench map` and `bench run` switch on.
+
+Off by default: `stage(name)` then returns one shared no-op context, so the mapper pays a global
+lookup per stage. Inside `profiling()` every stage adds its wall time to the active StageProfile,
+and the rasterizer adds its own phases (`add_kernel`: project, bin, blend, reduce, chain, and the
+pixel-splat evaluations), which the bench turns into exclusive per-stage times (`breakdown`).
+Stages nest (the rasterizer's kernel runs inside `render`), so a stage's recorded time includes
+the stages inside it.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import defaultdict
+from contextlib import contextmanager
+from typing import Iterator
+
+
+class StageProfile:
+    """Seconds and calls per stage name, and the rasterizer's phase sums per direction."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = defaultdict(float)
+        self.calls: dict[str, int] = defaultdict(int)
+        self.kernel: dict[str, float] = defaultdict(float)  # "forward.blend_s", "backward.evals", ...
+
+    def add(self, name: str, seconds: float) -> None:
+        self.seconds[name] += seconds
+        self.calls[name] += 1
+
+    def add_kernel(self, direction: str, stats: dict[str, float]) -> None:
+        for key, value in stats.items():
+            self.kernel[f"{direction}.{key}"] += float(value)
+
+
+_active: StageProfile | None = None
+
+
+class _Timer:
+    __slots__ = ("profile", "name", "t0")
+
+    def __init__(self, profile: StageProfile, name: str) -> None:
+        self.profile, self.name = profile, name
+
+    def __enter__(self) -> None:
+        self.t0 = time.perf_counter()
+
+    def __exit__(self, *exc) -> None:
+        self.profile.add(self.name, time.perf_counter() - self.t0)
+
+
+class _NoTimer:
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc) -> None:
+        return None
+
+
+_NO_TIMER = _NoTimer()
+
+
+def stage(name: str):
+    """A context that times `name` into the active profile; a no-op when none is active."""
+    return _NO_TIMER if _active is None else _Timer(_active, name)
+
+
+def add_kernel(direction: str, stats_fn) -> None:
+    """Add the rasterizer's phase stats (`stats_fn()`, read only when profiling) under `direction`."""
+    if _active is not None:
+        _active.add_kernel(direction, stats_fn())
+
+
+def active() -> bool:
+    return _active is not None
+
+
+@contextmanager
+def profiling() -> Iterator[StageProfile]:
+    """Collect stage timings for the duration of the block."""
+    global _active
+    previous, _active = _active, StageProfile()
+    try:
+        yield _active
+    finally:
+        _active = previous
+
+
+# Exclusive stages of one mapping iteration, in pipeline order: (row name, how it is derived).
+def breakdown(p: StageProfile, frames: int) -> list[dict]:
+    """Rows of exclusive time per stage: ms per iteration (iteration stages) or per frame (the rest),
+    and each row's share of all mapping time. `frames`: the add_frame calls profiled."""
+    s, k = p.seconds, p.kernel
+    iters = max(1, p.calls["render"])
+    fwd_kernel = {name: k[f"forward.{name}_s"] for name in ("project", "bin", "sort", "blend")}
+    bwd_kernel = {name: k[f"backward.{name}_s"] for name in ("project", "bin", "sort", "blend", "reduce", "chain")}
+    axes_fwd, axes_bwd = s["splat axes"], s["splat axes backward"]
+    ssim = s["ssim"] + s["ssim backward"]
+    normals = s["depth normals"] + s["depth normals backward"]
+    iteration = {
+        "splat axes": axes_fwd + axes_bwd,
+        "project": fwd_kernel["project"] + bwd_kernel["project"],
+        "bin and sort": fwd_kernel["bin"] + fwd_kernel["sort"] + bwd_kernel["bin"] + bwd_kernel["sort"],
+        "forward blend": fwd_kernel["blend"],
+        "render other": s["render"] - axes_fwd - sum(fwd_kernel.values()),
+        "loss (L1, depth)": s["loss"] - s["ssim"] - s["depth normals"],
+        "SSIM": ssim,
+        "depth normals": normals,
+        "backward blend": bwd_kernel["blend"],
+        "backward reduce and chain": bwd_kernel["reduce"] + bwd_kernel["chain"],
+        "backward other": s["backward"] - sum(bwd_kernel.values()) - s["ssim backward"]
+        - s["depth normals backward"] - axes_bwd,
+        "optimizer step": s["optimizer step"],
+        # per optimization call: the target's masks and SSIM moments, the view's culling, the
+        # gathered copy of its splats; a replay iteration is a call of its own
+        "view setup": s["view setup"],
+    }
+    in_iterations = s["render"] + s["loss"] + s["backward"] + s["optimizer step"] + s["view setup"]
+    per_frame = {
+        "densify": s["densify"],
+        "prune": s["prune"],
+        "other": s["add_frame"] - in_iterations - s["densify"] - s["prune"],
+    }
+    total = max(s["add_frame"], 1e-12)
+    rows = [{"stage": name, "ms_per_iteration": 1e3 * v / iters, "share": v / total}
+            for name, v in iteration.items()]
+    rows += [{"stage": name, "ms_per_frame": 1e3 * v / max(1, frames), "share": v / total}
+             for name, v in per_frame.items()]
+    return rows
+
+
+def blend_rates(p: StageProfile, ceiling: dict[str, float], threads: int) -> dict:
+    """The forward blend's measured rate against the probe's ceiling (render.extension blend_ceiling):
+    evaluations and blends per second per thread, and the share of the blend's time that the same
+    evaluations would take at the ceiling (`of_ceiling`) and that its blending evaluations alone would
+    take (`useful_of_ceiling`: the rest is waste)."""
+    k = p.kernel
+    blend_s, evals, blends = k["forward.blend_s"], k["forward.evals"], k["forward.blends"]
+    thread_s = max(blend_s * threads, 1e-12)
+    t_blend, t_reject = 1.0 / ceiling["blend_per_s_thread"], 1.0 / ceiling["reject_per_s_thread"]
+    return {"evals_M_per_s_thread": evals / thread_s / 1e6, "blends_M_per_s_thread": blends / thread_s / 1e6,
+            "ceiling_blend_M_per_s_thread": ceiling["blend_per_s_thread"] / 1e6,
+            "ceiling_reject_M_per_s_thread": ceiling["reject_per_s_thread"] / 1e6,
+            "evals_per_blend": evals / max(blends, 1.0),
+            "of_ceiling": ((evals - blends) * t_reject + blends * t_blend) / thread_s,
+            "useful_of_ceiling": blends * t_blend / thread_s}

@@ -1,0 +1,79 @@
+"""The mapping profile of `bench map`: stage timers over a real mapper, and the blend's ceiling probe."""
+
+import pytest
+
+from flightrecon import profiling
+from flightrecon.config import MapperConfig, load_config
+from flightrecon.geometry import camera_pose
+from flightrecon.mapping.mapper import OnlineMapper
+from flightrecon.render.extension import load
+from flightrecon.scene.procedural import make_scene
+from flightrecon.sim.camera import RGBDCamera
+from flightrecon.sim.world import build_world
+
+W, H = 96, 72
+
+
+@pytest.fixture(scope="module")
+def views():
+    scene = make_scene("office0", 0)
+    cam = RGBDCamera(build_world(scene, load_config(None), with_drone=False), W, H, 90.0, 0.05, 10.0)
+    poses = [camera_pose([0.0, 0.0, 1.2], 0.5, 25.0), camera_pose([0.1, 0.1, 1.25], 0.8, 20.0)]
+    return cam.K, [(*cam.render(T), T) for T in poses]
+
+
+def test_profile_counts_every_iteration_and_no_stage_is_negative(views):
+    K, vs = views
+    cfg = MapperConfig(backend="cpu", init_subsample=0.3, init_scale_by_resolution=False, k_new=3, k_replay=2,
+                       prune_opacity=0.05)
+    mapper = OnlineMapper(cfg, near=0.05, far=10.0, seed=0, device="cpu")
+    with profiling.profiling() as prof:
+        for rgb, depth, T in vs:
+            mapper.add_frame(rgb, depth, K, T)
+    assert not profiling.active()
+    # each frame: k_new iterations on it, then k_replay iterations of one call each (frame 0 replays itself)
+    assert prof.calls["render"] == prof.calls["backward"] == 2 * (3 + 2)
+    assert prof.calls["view setup"] == 2 * (2 * (1 + 2))  # setup and write-back per call
+    assert prof.calls["add_frame"] == prof.calls["densify"] == prof.calls["prune"] == 2
+    assert prof.kernel["forward.evals"] >= prof.kernel["forward.blends"] > 0
+    rows = profiling.breakdown(prof, frames=2)
+    # exclusive times: a nested stage never takes more than the stage around it (timer resolution aside)
+    assert all(r["share"] > -1e-3 for r in rows), rows
+    assert sum(r["share"] for r in rows) == pytest.approx(1.0)
+    names = {r["stage"] for r in rows}
+    assert {"project", "bin and sort", "forward blend", "backward blend", "SSIM", "depth normals",
+            "optimizer step", "densify", "prune"} <= names
+
+
+def test_stage_is_a_no_op_outside_a_profile():
+    with profiling.stage("render"):
+        pass
+    with profiling.profiling() as prof:
+        with profiling.stage("render"):
+            pass
+        with profiling.profiling() as inner:  # a nested profile collects alone, then the outer resumes
+            with profiling.stage("loss"):
+                pass
+        with profiling.stage("render"):
+            pass
+    assert dict(prof.calls) == {"render": 2} and dict(inner.calls) == {"loss": 1}
+
+
+def test_blend_rates_by_hand():
+    prof = profiling.StageProfile()
+    prof.add_kernel("forward", {"blend_s": 0.5, "evals": 3e8, "blends": 1e8})
+    ceiling = {"blend_per_s_thread": 2e8, "reject_per_s_thread": 4e8}
+    r = profiling.blend_rates(prof, ceiling, threads=2)
+    # 1 thread-second: 2e8 rejected at 4e8/s (0.5 s) and 1e8 blended at 2e8/s (0.5 s)
+    assert r["evals_M_per_s_thread"] == pytest.approx(300.0)
+    assert r["blends_M_per_s_thread"] == pytest.approx(100.0)
+    assert r["of_ceiling"] == pytest.approx(1.0)
+    assert r["useful_of_ceiling"] == pytest.approx(0.5)
+    assert r["evals_per_blend"] == pytest.approx(3.0)
+
+
+def test_ceiling_probe_runs_on_every_thread():
+    ext = load()
+    c = ext.blend_ceiling(0.04)  # raises if its tile wasted an evaluation or blended when it must not
+    assert c["threads"] == ext.num_threads()
+    assert c["blend_per_s_thread"] > 0 and c["reject_per_s_thread"] > 0
