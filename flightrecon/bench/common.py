@@ -37,8 +37,9 @@ def machine() -> dict:
 def contention_warning(info: dict) -> str | None:
     """A warning when other processes competed for the cores during the run.
 
-    The rasterizer's OpenMP threads spin at barriers, so with more runnable threads than cores a
-    frame can take several times its quiet time: such figures are not the project's speed.
+    With more runnable threads than cores every parallel region waits for a descheduled thread
+    (waiting threads sleep, flightrecon.threads, but the work still shares the cores), so such
+    figures are not the project's speed.
     """
     load, cores = info.get("load_avg_1m", 0.0), info.get("cores") or 1
     if load > cores + 0.5:

@@ -12,7 +12,6 @@ on a Ray cluster, local or `ray_address`).
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -23,6 +22,7 @@ from flightrecon.config import load_config
 from flightrecon.errors import FlightReconError
 from flightrecon.fileio import write_text
 from flightrecon.memory import keep_freed_memory
+from flightrecon.threads import available_cores
 
 
 @dataclass(frozen=True)
@@ -83,7 +83,8 @@ def run_one(spec: RunSpec, threads: int = 0, allow_code_change: bool = False) ->
     to failed.txt); returns (run folder, what was done).
 
     Pool and ray workers start here, not in the CLI, so the malloc tuning the CLI applies to its
-    own process is applied here too."""
+    own process is applied here too. Their OpenMP wait policy is already set: they import
+    flightrecon (flightrecon.threads) before torch, and inherit the parent's environment."""
     keep_freed_memory()
     if threads > 0:
         import torch
@@ -129,7 +130,7 @@ def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_ad
     if max_runs is not None and len(todo) > max_runs:
         log(f"this part runs {max_runs} of the {len(todo)} unfinished runs; the next call continues")
         todo = todo[:max_runs]
-    threads = max(1, (os.cpu_count() or 1) // max(1, jobs))
+    threads = max(1, available_cores() // max(1, jobs))
     if not todo:
         return done
     if executor == "ray":
