@@ -152,13 +152,19 @@ struct Bins {
   std::vector<S> rec;            // records, REC + D values each
   int R = REC;
   std::vector<int64_t> ends;     // per tile, where its blend stops when shorter than its list (feature_sums)
+  // Per list entry (a splat in a tile), when the AVX2 forward kept it for the backward: a bit for each
+  // pixel group it visited in which some pixel blended (group_bit), so the backward evaluates only
+  // those. Empty: not recorded, the backward evaluates every group.
+  std::vector<uint32_t> blended;
 };
 
-// Where forward_tile writes one camera's images (null: not rendered).
+// Where forward_tile writes one camera's images (null: not rendered), and Bins::blended (null: not
+// recorded).
 template <typename S>
 struct FwdOut {
   S *feat, *alpha, *normal, *zsum, *msum, *m2sum, *median;
   int32_t *last, *medj;
+  uint32_t* blended = nullptr;
 };
 
 struct TileWork {

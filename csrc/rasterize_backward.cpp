@@ -147,6 +147,9 @@ void backward_splats_avx2(BwdTile<float>& t, const Bins<float>& B, int D, const 
     const __m256 m0 = _mm256_set1_ps(M[0]), m1 = _mm256_set1_ps(M[1]), m2 = _mm256_set1_ps(M[2]);
     const __m256 m6 = _mm256_set1_ps(M[6]), m7 = _mm256_set1_ps(M[7]), m8 = _mm256_set1_ps(M[8]);
     const __m256i vj = _mm256_set1_epi32(j);
+    // the groups in which the forward blended this record (all when it did not record them)
+    const uint32_t blended = B.blended.empty() ? ~0u : B.blended[jj];
+    if (blended == 0) continue;  // its slot stays 0, as the sums of groups that all return early
     __m256 acc[NG], accO = zero, accN[3] = {zero, zero, zero}, accF[MAX_D_AVX2];
     for (int e = 0; e < NG; ++e) acc[e] = zero;
     for (int d = 0; d < D; ++d) accF[d] = zero;
@@ -227,13 +230,16 @@ void backward_splats_avx2(BwdTile<float>& t, const Bins<float>& B, int D, const 
       for (int p00 = sp.p0; p00 < sp.p1; p00 += 2 * RS) {  // the second row may be past the box
         const int r = p00 / RS;
         if (j >= row_last[r] && j >= row_last[r + 1]) continue;
+        if (!((blended >> group_bit(sp, p00, sp.c0)) & 1u)) continue;  // no pixel of the group blends
         group(std::true_type{}, p00 + sp.c0, row_b(M, py[p00], py[p00 + RS], my));
       }
     } else {
       for (int p00 = sp.p0; p00 < sp.p1; p00 += RS) {
         if (j >= row_last[p00 / RS]) continue;  // no pixel of this row blends this splat or any later one
+        if (!((blended >> group_bit(sp, p00, sp.c0)) & 3u)) continue;  // neither group of the row blends
         const RowB rb = row_b(M, py[p00], my);
-        for (int pg = p00 + sp.c0; pg < p00 + sp.c1; pg += LANES) group(std::false_type{}, pg, rb);
+        for (int c = sp.c0; c < sp.c1; c += LANES)
+          if ((blended >> group_bit(sp, p00, c)) & 1u) group(std::false_type{}, p00 + c, rb);
       }
     }
     for (int e = 0; e < NG; ++e) slot[e] = hsum8(acc[e]);

@@ -46,6 +46,14 @@ inline Span span_of(const int* r, int tx, int ty) {
               c0, c0 + (cl - c0 + LANES) / LANES * LANES, cl - c0 < LANES / 2};
 }
 
+// The bit of a pixel group in Bins::blended: the AVX2 loops visit a record's groups in its span
+// row by row, a 4x2 group (pairs) per two rows, else up to two 8-column groups per row (a box is at
+// most TS wide), so a record has at most 32 groups in a tile.
+inline int group_bit(const Span& sp, int p00, int c) {
+  return sp.pairs ? (p00 - sp.p0) / (2 * RS) : 2 * ((p00 - sp.p0) / RS) + (c - sp.c0) / LANES;
+}
+static_assert(2 * TS <= 32 && TS <= 2 * LANES, "a record's groups in a tile fit Bins::blended's 32 bits");
+
 // Per pixel row: l = y T_w - T_v is constant along a row, so q = k x l = x (T_w x l) - (T_u x l)
 // is affine in x: three FMAs per pixel instead of a cross product.
 template <typename S>

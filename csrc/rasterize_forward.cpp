@@ -51,7 +51,8 @@ struct FwdTile {
 // kept in registers instead of masked stores, and exp inline. Records are prefetched a few
 // splats ahead (the tile lists them in depth order, scattered in memory).
 template <bool TRACK>
-TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, const Settings& st, const Flags& fl) {
+TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, const Settings& st, const Flags& fl,
+                             uint32_t* out_blended) {
   const int tx = t.tx, ty = t.ty;
   const int64_t b0 = t.b0, b1 = t.b1;
   const float *px = t.px, *py = t.py;
@@ -91,8 +92,9 @@ TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, con
     const __m256 m6 = _mm256_set1_ps(M[6]), m7 = _mm256_set1_ps(M[7]), m8 = _mm256_set1_ps(M[8]);
     const __m256 vj = _mm256_castsi256_ps(_mm256_set1_epi32(j));
     const __m256 vj1 = _mm256_castsi256_ps(_mm256_set1_epi32(j + 1));
+    uint32_t visited_blend = 0;  // Bins::blended of this record
     // One group at slot pg (see load8); returns the mask of its pixels that terminate.
-    auto group = [&](auto pair, int pg, const RowVec& rv) -> int {
+    auto group = [&](auto pair, int pg, const RowVec& rv, int bit) -> int {
       constexpr bool P = decltype(pair)::value;
       evals += LANES;
       const __m256 x = load8<P>(px + pg);
@@ -110,6 +112,7 @@ TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, con
       blends += __builtin_popcount(unsigned(bm));
       if (sm) store8<P>(act + pg, _mm256_andnot_ps(stop, actp));
       if (!bm) return sm;
+      visited_blend |= 1u << bit;
       const __m256 wp = _mm256_and_ps(blend, _mm256_mul_ps(a, Tp));
       if constexpr (TRACK) {  // features-only calls (view selection) skip the depth bookkeeping
         const __m256 med = _mm256_and_ps(blend, _mm256_cmp_ps(Tp, half, _CMP_GT_OQ));
@@ -151,10 +154,11 @@ TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, con
         const int r = p00 / RS;
         if ((((live[r] | live[r + 1]) >> sp.c0) & 0xfu) == 0) continue;  // its 8 pixels have terminated
         const RowVec rv = row_vec(row_of(M, py[p00], my), row_of(M, py[p00 + RS], my));
-        const uint32_t sm = uint32_t(group(std::true_type{}, p00 + sp.c0, rv));
+        const uint32_t sm = uint32_t(group(std::true_type{}, p00 + sp.c0, rv, group_bit(sp, p00, sp.c0)));
         terminate(r, sm & 0xfu, sp.c0);
         terminate(r + 1, sm >> 4, sp.c0);
       }
+      if (out_blended) out_blended[jj] = visited_blend;
       continue;
     }
     for (int p00 = sp.p0; p00 < sp.p1; p00 += RS) {
@@ -163,9 +167,10 @@ TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, con
       const RowVec rv = row_vec(row_of(M, py[p00], my));
       for (int c = sp.c0; c < sp.c1; c += LANES) {
         if (((live[r] >> c) & 0xffu) == 0) continue;  // its 8 pixels have terminated
-        terminate(r, uint32_t(group(std::false_type{}, p00 + c, rv)), c);
+        terminate(r, uint32_t(group(std::false_type{}, p00 + c, rv, group_bit(sp, p00, c))), c);
       }
     }
+    if (out_blended) out_blended[jj] = visited_blend;
   }
   return TileWork{evals, blends};
 }
@@ -297,7 +302,7 @@ TileWork forward_tile(int tile, const Bins<S>& B, int D, const Settings& st, con
   FwdTile<S> t(tile, B, D, st, fl);
   TileWork work;
 #if FR_AVX2
-  if constexpr (std::is_same<S, float>::value) work = forward_splats_avx2<TRACK>(t, B, D, st, fl);
+  if constexpr (std::is_same<S, float>::value) work = forward_splats_avx2<TRACK>(t, B, D, st, fl, out.blended);
   else
 #endif
     work = forward_splats_generic<S, TRACK>(t, B, D, st, fl);
@@ -361,13 +366,15 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
     sc.project += omp_get_wtime() - t0;
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
     Bins<S> B = bin_and_sort(P, groups, vis, f, int(D), st, sc);
+    if (kept_bins && FR_AVX2 && std::is_same<S, float>::value) B.blended.assign(B.ids.size(), 0u);
     const int64_t HW = H * W;
     FwdOut<S> out{feat_img.data_ptr<S>() + c * HW * D, alpha.data_ptr<S>() + c * HW,
                   fl.normal ? normal.data_ptr<S>() + c * HW * 3 : nullptr,
                   dz ? zsum.data_ptr<S>() + c * HW : nullptr, dz ? msum.data_ptr<S>() + c * HW : nullptr,
                   dz ? m2sum.data_ptr<S>() + c * HW : nullptr, fl.track ? median.data_ptr<S>() + c * HW : nullptr,
                   fl.track ? last.data_ptr<int32_t>() + c * HW : nullptr,
-                  fl.track ? medj.data_ptr<int32_t>() + c * HW : nullptr};
+                  fl.track ? medj.data_ptr<int32_t>() + c * HW : nullptr,
+                  B.blended.empty() ? nullptr : B.blended.data()};
     t0 = omp_get_wtime();
     int64_t evals = 0, blends = 0;
 #pragma omp parallel for schedule(dynamic, 1) reduction(+ : evals, blends)
