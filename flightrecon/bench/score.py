@@ -61,6 +61,7 @@ def _sizes(spec: str, mission: Mission) -> list[tuple[int, int]]:
 
 
 def _thread_counts(spec: str) -> list[int]:
+    """The --threads counts; by default 1 and the current count, so one run shows the scaling."""
     if not spec:
         return sorted({1, torch.get_num_threads()})
     try:
