@@ -87,6 +87,7 @@ void bind_rasterizer(pybind11::module_& m) {
         {"project_s", g_stats.project}, {"bin_s", g_stats.bin}, {"sort_s", g_stats.sort},
         {"blend_s", g_stats.blend}, {"reduce_s", g_stats.reduce}, {"chain_s", g_stats.chain},
         {"evals", double(g_stats.evals)}, {"blends", double(g_stats.blends)}, {"isects", double(g_stats.isects)},
+        {"tests", double(g_stats.tests)}, {"projected", double(g_stats.projected)}, {"binned", double(g_stats.binned)},
         {"by_camera", double(g_stats.by_camera)}};
   }, "phase timings and pixel-splat evaluations of the last forward/backward call");
 }

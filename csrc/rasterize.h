@@ -58,6 +58,7 @@ constexpr int NG = 11;           // per-pixel geometric gradient: T_u, T_v, T_w 
 constexpr int NSYM = NG * (NG + 1) / 2;
 constexpr int REC = 15;  // a Bins record: ray transform (9), means2d (2), opacity, normal (3); features follow
 constexpr int GROUP = 32;  // splats per culling group (SplatGroups)
+constexpr int BLOCK = 32;  // culling groups per block (SplatGroups): a camera tests a group only in a block it may see
 
 // ---------------------------------------------------------------- inputs and settings
 
@@ -83,10 +84,12 @@ struct Flags {
 struct Stats {
   double project = 0, bin = 0, sort = 0, blend = 0, reduce = 0, chain = 0;
   int64_t evals = 0, blends = 0, isects = 0;  // pixel-splat evaluations, those that blend, tile-splat pairs
+  int64_t tests = 0, projected = 0, binned = 0;  // culling spheres tested, splats projected, splats binned
   bool by_camera = false;  // timings are then summed over threads (thread-seconds), not wall time
   void add(const Stats& o) {
     project += o.project; bin += o.bin; sort += o.sort; blend += o.blend; reduce += o.reduce;
     chain += o.chain; evals += o.evals; blends += o.blends; isects += o.isects;
+    tests += o.tests; projected += o.projected; binned += o.binned;
   }
 };
 extern Stats g_stats;  // rasterize.cpp; last_stats reads it
@@ -97,6 +100,8 @@ extern Stats g_stats;  // rasterize.cpp; last_stats reads it
 // along a Morton curve of their means, so each run of GROUP consecutive positions is spatially
 // compact, and each run (group) gets a sphere holding its splats' bounding spheres. A camera then
 // projects only the splats of the groups whose sphere may reach its frustum, instead of all N.
+// Runs of BLOCK consecutive groups (blocks) get a sphere holding their groups' spheres, so a
+// camera tests the groups of the blocks it may see, not every group of the map.
 // Without culling (one camera) the splats stay in id order and nothing is copied.
 // The per-splat values that do not depend on the camera live here too, in the same order: the
 // bounding-sphere radius of the frustum test and the opacity-aware cutoff (rho_max, <= 0 when the
@@ -110,6 +115,7 @@ struct SplatGroups {
   std::vector<S> rad, cut, freach;
   std::vector<double> rho_max;
   std::vector<double> sphere;                // per group when culling: center (3), radius
+  std::vector<double> block;                 // per block when culling: center (3), radius
   SplatGroups() = default;
   SplatGroups(const SplatGroups&) = delete;  // the pointers may point into `sorted`
   SplatGroups(SplatGroups&&) = default;
@@ -117,6 +123,7 @@ struct SplatGroups {
   int groups() const { return int((N + GROUP - 1) / GROUP); }
   int64_t begin(int g) const { return int64_t(g) * GROUP; }
   int64_t end(int g) const { return std::min(N, int64_t(g + 1) * GROUP); }
+  int blocks() const { return (groups() + BLOCK - 1) / BLOCK; }
 };
 
 // One camera's projected splats (struct of arrays over all N splats, by SplatGroups position).
@@ -134,6 +141,7 @@ struct Projected {
 // What one camera may see: the groups that pass the frustum test (their splats are projected, the
 // others keep radius 0) and, of their splats, the positions that touch the image, increasing.
 struct Visible {
+  int64_t tests = 0, projected = 0;  // spheres tested (blocks and groups), splats projected (Stats)
   std::vector<int32_t> groups;
   std::vector<uint32_t> masks;  // per passing group: a bit for each binned splat
   std::vector<int32_t> binned;

@@ -81,6 +81,9 @@ std::vector<torch::Tensor> feature_sums_impl(torch::Tensor means, torch::Tensor 
       for (const int32_t s : vis.binned) feat[groups.id[s]] = sided_feature(groups, s, centers[c].data(), value,
                                                                             w_min, weighted);
       sc.project += omp_get_wtime() - t0;
+      sc.tests += vis.tests;
+      sc.projected += vis.projected;
+      sc.binned += int64_t(vis.binned.size());
       Bins<S> B = bin_and_sort(P, groups, vis, feat.data(), 1, st, sc);
       std::vector<char> cut(tiles, 0);
       if (floor > 0) {

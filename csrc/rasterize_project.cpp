@@ -88,6 +88,31 @@ void bound_group(SplatGroups<S>& g, int k) {
   c[3] = r;
 }
 
+// Block b's sphere: its groups' centers' box center, and a radius that holds each group's sphere,
+// padded by 2e-4 of the group's offset so that a block group_outside culls has every group
+// group_outside culls too: a group's test margin (1e-4 of a scale that grows by at most sqrt(3)
+// times its offset from the block's center, less the radius gap) never outgrows the block's.
+template <typename S>
+void bound_block(SplatGroups<S>& g, int b) {
+  const int k0 = b * BLOCK, k1 = std::min(g.groups(), k0 + BLOCK);
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = g.sphere[4 * size_t(k0) + a];
+  for (int k = k0 + 1; k < k1; ++k)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], g.sphere[4 * size_t(k) + a]);
+      hi[a] = std::max(hi[a], g.sphere[4 * size_t(k) + a]);
+    }
+  double* c = &g.block[4 * size_t(b)];
+  for (int a = 0; a < 3; ++a) c[a] = 0.5 * (lo[a] + hi[a]);
+  double r = 0;
+  for (int k = k0; k < k1; ++k) {
+    const double* q = &g.sphere[4 * size_t(k)];
+    const double dx = q[0] - c[0], dy = q[1] - c[1], dz = q[2] - c[2];
+    r = std::max(r, std::sqrt(dx * dx + dy * dy + dz * dz) * (1.0 + 2e-4) + q[3]);
+  }
+  c[3] = r;
+}
+
 // ---------------------------------------------------------------- frustum tests
 
 // Frustum planes through the camera center, widened by the low-pass filter's reach in pixels
@@ -224,6 +249,7 @@ SplatGroups<S> group_splats(const S* means, const S* U, const S* V, const S* n, 
     S* m = g.sorted.data();
     g.mean = m, g.U = m + 3 * N, g.V = m + 6 * N, g.n = m + 9 * N, g.opac = m + 12 * N;
     g.sphere.resize(4 * size_t(g.groups()));
+    g.block.resize(4 * size_t(g.blocks()));
   } else {
     g.id.resize(N);
     std::iota(g.id.begin(), g.id.end(), 0);
@@ -239,6 +265,8 @@ SplatGroups<S> group_splats(const S* means, const S* U, const S* V, const S* n, 
     }
     if (spatial) bound_group(g, k);
   }
+  if (spatial)
+    for (int b = 0; b < g.blocks(); ++b) bound_block(g, b);
   return g;
 }
 
@@ -247,9 +275,25 @@ void project_camera(const SplatGroups<S>& G, const Camera& cam, const Settings& 
                     Visible& vis) {
   const Frustum fr = frustum_of(cam, st);
   vis.groups.clear();
-  for (int k = 0; k < G.groups(); ++k)
-    if (!(fr.pinhole && G.culls() && group_outside(&G.sphere[4 * size_t(k)], cam, fr, st.near))) vis.groups.push_back(k);
+  vis.tests = 0;
+  if (fr.pinhole && G.culls()) {
+    // the groups of the blocks that pass, in increasing order: those group_outside keeps
+    for (int b = 0; b < G.blocks(); ++b) {
+      ++vis.tests;
+      if (group_outside(&G.block[4 * size_t(b)], cam, fr, st.near)) continue;
+      const int k1 = std::min(G.groups(), (b + 1) * BLOCK);
+      for (int k = b * BLOCK; k < k1; ++k) {
+        ++vis.tests;
+        if (!group_outside(&G.sphere[4 * size_t(k)], cam, fr, st.near)) vis.groups.push_back(k);
+      }
+    }
+  } else {
+    vis.groups.resize(G.groups());
+    std::iota(vis.groups.begin(), vis.groups.end(), 0);
+  }
   const int ng = int(vis.groups.size());
+  vis.projected = 0;
+  for (const int k : vis.groups) vis.projected += G.end(k) - G.begin(k);
   vis.masks.resize(ng);
 #pragma omp parallel for schedule(static)
   for (int e = 0; e < ng; ++e) {

@@ -49,11 +49,13 @@ def test_bench_run_then_score_on_its_map(tmp_path):
     assert result["splats"] > 0 and result["map_mb"] > 0 and result["wall_time_min"] > 0
     assert (run_dir / "metrics.json").is_file()
     out = tmp_path / "score.json"
-    assert main(["bench", "score", "--run", str(run_dir), "--sizes", "40x30", "--repeat", "1",
+    assert main(["bench", "score", "--run", str(run_dir), "--sizes", "40x30", "--repeat", "1", "--threads", "1,2",
                  "--out", str(out)]) == 0
     score = json.loads(out.read_text())
+    assert [r["threads"] for r in score["rows"]] == [1, 2]
     row = score["rows"][0]
     assert row["candidates"] > 20 and row["same_argmax"] and 1 <= row["rescored"] <= row["candidates"]
+    assert 0 < row["binned_per_cand"] <= row["projected_per_cand"] and row["tests_per_cand"] > 0
     assert {b["method"] for b in score["baselines"]} == {"gaussmi", "fisherrf", "activegs"}
     activegs = next(b for b in score["baselines"] if b["method"] == "activegs")
     assert activegs["voxels_explored"] > 0  # its exploration utility is timed with the run's voxel map

@@ -6,7 +6,10 @@ candidate library around the drone's final pose (every candidate, feasible or no
 case of a step) and times, per scoring resolution: 2D GauSS-MI scored exactly (reliability.gain_floor
 0) and with the configured floor (the cut first pass plus the exact re-scoring of the candidates
 that can still win), whether both pick the same view, how many candidates were re-scored, and the
-first pass's bound relative to the best MI. Then the baselines' own score() at their own
+first pass's bound relative to the best MI, at each thread count of `--threads` (rows per count, so
+the scaling shows), with the rasterizer's stage profile of the exact call (thread-ms summed over
+cameras, and per candidate the culling spheres tested, splats projected and splats binned). Then
+the baselines' own score() at the last thread count and their own
 settings on the same poses (`--methods`), with their cost relative to ours (the paper reports
 FisherRF at 22x, GauSS-MI at 5.3x and ActiveGS at 1.9x the time of 2D GauSS-MI).
 """
@@ -30,6 +33,8 @@ from flightrecon.errors import FlightReconError
 from flightrecon.mapping.frames import expand_frame
 from flightrecon.mission import Mission
 from flightrecon.render import sided_feature_sums
+from flightrecon.render.api import resolve_backend
+from flightrecon.render.extension import load
 
 NOT_IN_ALL = "needs --run"
 
@@ -40,6 +45,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                                "scoring resolution and 640x480)")
     p.add_argument("--methods", default="gaussmi,fisherrf,activegs",
                    help="baselines whose own scoring is timed on the same poses (comma separated; '' for none)")
+    p.add_argument("--threads", default="", help="thread counts to score at, comma separated (default: 1 and "
+                                                 "the current count)")
     p.add_argument("--repeat", type=int, default=3)
 
 
@@ -53,7 +60,28 @@ def _sizes(spec: str, mission: Mission) -> list[tuple[int, int]]:
         raise FlightReconError(f"bench score: --sizes {spec!r}: give WxH pairs, e.g. 160x120,640x480") from None
 
 
-def _ours(mission: Mission, poses: np.ndarray, width: int, height: int, repeat: int) -> dict:
+def _thread_counts(spec: str) -> list[int]:
+    """The --threads counts; by default 1 and the current count, so one run shows the scaling."""
+    if not spec:
+        return sorted({1, torch.get_num_threads()})
+    try:
+        counts = [int(v) for v in spec.split(",")]
+    except ValueError:
+        raise FlightReconError(f"bench score: --threads {spec!r}: give thread counts, e.g. 1,2") from None
+    if not counts or min(counts) < 1:
+        raise FlightReconError(f"bench score: --threads {spec!r}: thread counts must be >= 1")
+    return counts
+
+
+def _profile(poses: np.ndarray) -> dict:
+    """The rasterizer's stages in its last call: thread-ms summed over the cameras, work per candidate."""
+    stats = load().last_stats()
+    row = {f"{stage}_ms": 1e3 * stats[f"{stage}_s"] for stage in ("project", "bin", "sort", "blend")}
+    row.update({f"{k}_per_cand": stats[k] / len(poses) for k in ("tests", "projected", "binned")})
+    return row
+
+
+def _ours(mission: Mission, poses: np.ndarray, width: int, height: int, repeat: int, threads: int) -> dict:
     cfg = mission.cfg
     mapper = mission.mapper
     splats = mapper.splats()
@@ -71,6 +99,7 @@ def _ours(mission: Mission, poses: np.ndarray, width: int, height: int, repeat: 
         result["culled"] = gaussmi2d.score_candidates(splats, rel, T, K, width, height, gain_floor=floor, **common)
 
     t_exact = time_call(exact, repeat=repeat)["median_s"]
+    profile = _profile(poses) if resolve_backend(cfg.mapper.backend) == "cpu" else {}
     t_culled = time_call(culled, repeat=repeat)["median_s"]
     first = sided_feature_sums(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"],
                                torch.nn.functional.softplus(-rel), torch.linalg.inv(T),
@@ -78,12 +107,12 @@ def _ours(mission: Mission, poses: np.ndarray, width: int, height: int, repeat: 
                                w_min=cfg.reliability.w_min, floor=floor, backend=cfg.mapper.backend)
     best = float(result["exact"].max())
     contenders = len(gaussmi2d.can_still_win(first))
-    return {"resolution": f"{width}x{height}", "candidates": len(poses), "exact_ms": 1e3 * t_exact,
+    return {"resolution": f"{width}x{height}", "threads": threads, "candidates": len(poses), "exact_ms": 1e3 * t_exact,
             "exact_ms_per_cand": 1e3 * t_exact / len(poses), "culled_ms": 1e3 * t_culled,
             "culled_ms_per_cand": 1e3 * t_culled / len(poses), "speedup": t_exact / t_culled,
             "same_argmax": bool(torch.argmax(result["exact"]) == torch.argmax(result["culled"])),
             "rescored": contenders, "gain_floor": floor,
-            "max_bound_over_best": float(first.bound.max()) / best if best > 0 else float("nan")}
+            "max_bound_over_best": float(first.bound.max()) / best if best > 0 else float("nan"), **profile}
 
 
 def _baseline(mission: Mission, method: str, poses: np.ndarray, repeat: int) -> dict:
@@ -118,13 +147,20 @@ def run(args: argparse.Namespace) -> dict:
     if len(mission.mapper.map) == 0:
         raise FlightReconError(f"bench score: the run {run_dir} has an empty map (no checkpoint after a frame?)")
     poses = library_poses(mission)
-    rows = [_ours(mission, poses, w, h, args.repeat) for w, h in _sizes(args.sizes, mission)]
-    ours_at_scoring = rows[0]["culled_ms"]
-    baselines = []
-    for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
-        row = _baseline(mission, method, poses, args.repeat)
-        row["ratio_to_ours"] = row["ms"] / ours_at_scoring
-        baselines.append(row)
+    sizes = _sizes(args.sizes, mission)
+    before = torch.get_num_threads()
+    rows, baselines = [], []
+    try:
+        for threads in _thread_counts(args.threads):
+            torch.set_num_threads(threads)  # the extension runs in torch's OpenMP runtime: this sets both
+            rows += [_ours(mission, poses, w, h, args.repeat, threads) for w, h in sizes]
+        ours_at_scoring = rows[-len(sizes)]["culled_ms"]  # the scoring resolution at the last count
+        for method in [m.strip() for m in args.methods.split(",") if m.strip()]:
+            row = _baseline(mission, method, poses, args.repeat)
+            row["ratio_to_ours"] = row["ms"] / ours_at_scoring
+            baselines.append(row)
+    finally:
+        torch.set_num_threads(before)
     extra = {"run": str(run_dir), "map": f"{len(mission.mapper.map)} splats after {mission.state.frame} frames",
              "baselines": baselines}
     return report("score", rows, getattr(args, "out", None), extra)
