@@ -15,8 +15,8 @@ and, for a view-selection method of one's own, `Selector`, `MapView`, `Observati
 
 MuJoCo binds its OpenGL backend when first imported, so the package chooses a headless one (EGL,
 else OSMesa; flightrecon.headless_gl) before any submodule can import mujoco. A user's own
-MUJOCO_GL wins. For the same reason the OpenMP wait policy (flightrecon.threads: waiting threads sleep
-instead of spinning, so a flight does not collapse when other work shares the cores) is set here,
+MUJOCO_GL wins. For the same reason the OpenMP wait policy (flightrecon.threads: waiting threads spin
+briefly, then sleep, so a flight does not collapse when other work shares the cores) is set here,
 before any submodule can import torch; a user's own OMP_WAIT_POLICY or GOMP_SPINCOUNT wins. The names
 above are imported on first use, so `import flightrecon` stays light.
 """

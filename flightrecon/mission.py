@@ -29,7 +29,7 @@ from typing import NoReturn
 
 import numpy as np
 
-from flightrecon import provenance, run_folder
+from flightrecon import provenance, run_folder, threads
 from flightrecon.active.diagnosis import move_kind
 from flightrecon.active.protocol import MapView, Observation, Selector
 from flightrecon.active.registry import make_selector
@@ -59,7 +59,7 @@ DIAGNOSIS_SURFACE_SAMPLES = 200_000  # ground-truth surface samples of output.di
 FRAME_COLUMNS = ("frame", "sim_time", "t_capture", "t_map", "t_select_update", "t_plan", "t_score",
                  "t_fly_sim", "n_splats", "n_candidates", "n_feasible", "n_ompl", "chosen_score",
                  "flight_time", "flight_distance", "recovery", "frame_psnr", "frame_depth_l1_cm",
-                 "eval_psnr", "eval_depth_l1_cm", "min_clearance", "contacts", "reliable_share_ema")
+                 "eval_psnr", "eval_depth_l1_cm", "min_clearance", "contacts", "reliable_share_ema", "threads")
 
 
 @dataclass
@@ -90,6 +90,7 @@ class Mission:
         self.flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(rig.scene.trimesh, cfg.drone.body_radius))
         self.planner = Planner(cfg, rig.workspace, rig.scene.trimesh, rig.start)
         self.mapper = OnlineMapper(cfg.mapper, near=cfg.camera.near, far=cfg.camera.far, seed=cfg.seed)
+        self.free_cores = threads.FreeCores()
         self.selector = make_selector(cfg)
         self.view = MapView(self.mapper, self.selector.columns)
         if cfg.budget.stop_on_reliability and not self.has_stopping_statistic:
@@ -208,6 +209,7 @@ class Mission:
         row["t_capture"] = time.perf_counter() - t
         row["sim_time"] = self.flight.time
 
+        row["threads"] = self.free_cores.update()
         t = time.perf_counter()
         with self._stage("mapping"):
             self.mapper.add_frame(rgb, depth, self.rig.K, T_wc)

@@ -2,7 +2,8 @@
 
 Each flight runs `flightrecon fly` in its own subprocess and run folder (no recording), first
 alone, then two of the same flight concurrently, once per OpenMP wait policy, all in one call:
-  passive  the package's policy (flightrecon.threads): waiting threads sleep;
+  short    the package's policy (flightrecon.threads): a short spin, then sleep;
+  passive  OMP_WAIT_POLICY=passive: waiting threads sleep at once;
   spin     libgomp's own default when nothing is set (GOMP_SPINCOUNT=300000: spin, then sleep),
            i.e. what a flight did before the policy;
   active   OMP_WAIT_POLICY=active: waiting threads never sleep.
@@ -31,7 +32,8 @@ from flightrecon.bench.common import report
 from flightrecon.errors import FlightReconError
 from flightrecon.threads import WAIT_VARIABLES
 
-POLICIES = {"passive": {"OMP_WAIT_POLICY": "passive"}, "spin": {"GOMP_SPINCOUNT": "300000"},
+POLICIES = {"short": {"GOMP_SPINCOUNT": "10000"}, "passive": {"OMP_WAIT_POLICY": "passive"},
+            "spin": {"GOMP_SPINCOUNT": "300000"},
             "active": {"OMP_WAIT_POLICY": "active"}}
 
 NOT_IN_ALL = "several short flights, some of them concurrent, several minutes on 2 cores"
@@ -41,8 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="default")
     p.add_argument("--frames", type=int, default=12, help="frame budget of each flight")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
-    p.add_argument("--policies", default="passive,spin",
-                   help=f"comma-separated wait policies to compare, of: {', '.join(POLICIES)}")
+    p.add_argument("--policies", default="short,spin",
+                   help=f"comma-separated wait policies to compare, of: {', '.join(POLICIES)}, or spin=N "
+                        "(GOMP_SPINCOUNT=N)")
     p.add_argument("--threads", type=int, default=0, help="OMP_NUM_THREADS of each flight (0: libgomp's default)")
     p.add_argument("--timeout", type=float, default=600.0, help="s; a flight running longer is stopped")
     p.add_argument("--work-dir", default=None, help="run folders go here (default: a temporary folder, removed)")
@@ -50,7 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> dict:
     policies = [p.strip() for p in args.policies.split(",") if p.strip()]
-    unknown = [p for p in policies if p not in POLICIES]
+    unknown = [p for p in policies if _policy_env(p) is None]
     if unknown:
         raise FlightReconError(f"bench pair --policies: unknown {', '.join(unknown)} (choose from {', '.join(POLICIES)})")
     _warm_caches(args)
@@ -83,10 +86,18 @@ def _warm_caches(args: argparse.Namespace) -> None:
     bake_scene(scene_from_config(cfg.scene), cfg.scene.cache_dir, cfg.scene.collision_voxel)
 
 
+def _policy_env(policy: str) -> dict[str, str] | None:
+    """The environment of a named policy or of spin=N; None if it is neither."""
+    if policy in POLICIES:
+        return POLICIES[policy]
+    name, _, count = policy.partition("=")
+    return {"GOMP_SPINCOUNT": count} if name == "spin" and count.isdigit() else None
+
+
 def _fly_together(args: argparse.Namespace, policy: str, run_dirs: list[Path]) -> list[dict]:
     """Start one flight per run folder at once and wait for all; their figures, in order."""
     env = {k: v for k, v in os.environ.items() if k not in WAIT_VARIABLES}
-    env.update(POLICIES[policy])
+    env.update(_policy_env(policy))
     if args.threads > 0:
         env["OMP_NUM_THREADS"] = str(args.threads)
     sets = [a for s in ["budget.frames=" + str(args.frames), *args.overrides] for a in ("--set", s)]
