@@ -149,6 +149,10 @@ class MapperConfig:
     gamma: float = option(0.05, 0.005, 1.0, doc="rejection distance of new splats (m), voxel-hash size")
     k_new: int = option(60, 0, 10000)
     k_replay: int = option(40, 0, 10000)
+    k_new_stop: float = option(0.0, 0.0, 1.0, doc="end a new frame's K_new iterations early, after k_new_min of them, "
+                               "once its loss has fallen to this share of its first iteration's; 0: always K_new "
+                               "(the paper)")
+    k_new_min: int = option(20, 0, 10000, doc="iterations on a new frame before k_new_stop may end them")
     lambda_depth: float = option(5.0, 0.0, 1e3)
     lambda_distortion: float = option(1.0, 0.0, 1e3)
     lambda_normal: float = option(0.05, 0.0, 1e3)

@@ -221,3 +221,30 @@ def test_training_the_cameras_splats_equals_training_the_whole_map(views):
         assert torch.equal(subset.map[name], full.map[name]), name
     assert bool((subset.map["adam_step"] > 3).any())  # the 5 iterations did update splats
 
+
+
+def test_k_new_stop_ends_a_new_frames_iterations_once_its_loss_has_fallen_enough(views):
+    from flightrecon import profiling
+
+    K, vs = views
+    rgb, depth, T = vs[0]
+
+    def iterations(**kw) -> int:
+        m = _mapper(k_new=30, k_replay=0, **kw)
+        with profiling.profiling() as prof:
+            m.add_frame(rgb, depth, K, T)
+        return prof.calls["render"]
+
+    assert iterations() == 30  # the paper's fixed K_new
+    assert iterations(k_new_stop=1.0, k_new_min=4) == 4  # any loss is within 100% of the first
+    # a share the loss reaches part way: the iterations end between k_new_min and K_new, at the first
+    # iteration whose loss is at most that share of the first (read off a fixed-K run's own losses)
+    m = _mapper(k_new=30, k_replay=0)
+    losses = []
+    original = m._loss
+    m._loss = lambda out, target: losses.append(float(original(out, target))) or original(out, target)
+    m.add_frame(rgb, depth, K, T)
+    share = losses[12] / losses[0] + 1e-6
+    expected = next(i for i, v in enumerate(losses) if i + 1 >= 5 and v <= share * losses[0]) + 1
+    assert 5 <= expected <= 13
+    assert iterations(k_new_stop=share, k_new_min=5) == expected

@@ -19,6 +19,7 @@ import argparse
 import numpy as np
 import torch
 
+from flightrecon import profiling
 from flightrecon.bench.common import report, time_call
 from flightrecon.errors import FlightReconError
 from flightrecon.geometry import camera_pose, intrinsics, invert_pose
@@ -26,7 +27,6 @@ from flightrecon.render import render
 from flightrecon.render.extension import load
 
 MAPPING = ("features", "alpha", "depth", "normal", "distortion")
-CEILING_M_PER_CORE = 760.0  # docs/architecture.md, "Platform facts" (an AVX-512 Xeon)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -109,16 +109,20 @@ def _backends(spec: str) -> list[str]:
     return names
 
 
-def _stats_row(label: str, stats: dict, threads: int, pixels: int) -> dict:
+def _stats_row(label: str, stats: dict, threads: int, pixels: int, ceiling: dict) -> dict:
     row = {"row": label}
     row.update({k: round(v * 1e3, 2) for k, v in stats.items() if k.endswith("_s")})
     # camera-parallel runs report thread-seconds; tile-parallel runs report wall time on all threads
     cores = 1 if stats.get("by_camera") else threads
     row["timing"] = "thread-ms summed" if stats.get("by_camera") else "wall ms"
     if stats.get("evals"):
-        rate = stats["evals"] / max(stats["blend_s"], 1e-9) / cores / 1e6
-        row.update({"evals_M": round(stats["evals"] / 1e6, 1), "blend_M_per_s_core": round(rate, 1),
-                    "of_ceiling": round(rate / CEILING_M_PER_CORE, 3),
+        prof = profiling.StageProfile()
+        prof.add_kernel("forward", stats)
+        rates = profiling.blend_rates(prof, ceiling, cores)
+        row.update({"evals_M": round(stats["evals"] / 1e6, 1),
+                    "blend_M_per_s_core": round(rates["evals_M_per_s_thread"], 1),
+                    "of_ceiling": round(rates["of_ceiling"], 3),
+                    "useful_of_ceiling": round(rates["useful_of_ceiling"], 3),
                     # evaluated vs blending (alpha >= 1/255, pixel not terminated) splats per pixel:
                     # the gap is the work the tile/row/8-column-group visiting order wastes
                     "evals_per_px": round(stats["evals"] / pixels, 1),
@@ -130,20 +134,22 @@ def run(args) -> dict:
     backends = _backends(args.backends)
     ext = load()
     threads = ext.num_threads()
+    ceiling = ext.blend_ceiling(1.0)
     rows, profile = [], []
     for n in [int(s) for s in args.sizes.split(",")]:
         host_splats = surface_splats(args.scene, n)
         for b in backends:
-            _run_backend(args, b, n, host_splats, ext, threads, rows, profile)
+            _run_backend(args, b, n, host_splats, ext, threads, rows, profile, ceiling)
     targets = {"640x480 200k forward": "<= 100 ms", "640x480 200k forward+backward": "<= 300 ms",
                "198-camera batch 160x120": "<= 300 ms", "vs reference": ">= 50x"}
     report("render", rows, args.out, extra={"profile_ms": profile, "targets": targets,
-                                            "omp_threads": threads})
+                                            "omp_threads": threads, "ceiling": ceiling})
     report("render-profile", profile)
     return {"rows": rows, "profile": profile}
 
 
-def _run_backend(args, backend: str, n: int, host_splats, ext, threads: int, rows: list, profile: list) -> None:
+def _run_backend(args, backend: str, n: int, host_splats, ext, threads: int, rows: list, profile: list,
+                 ceiling: dict) -> None:
     """One backend's rows for one map size; the cpu backend also its kernel profile and reference peer."""
     dev = "cuda" if backend == "cuda" else "cpu"
     cpu = backend == "cpu"
@@ -152,12 +158,12 @@ def _run_backend(args, backend: str, n: int, host_splats, ext, threads: int, row
         vm, K = (x.to(dev) for x in _camera(w, h))
         t = time_call(lambda: _fwd(splats, vm, K, w, h, MAPPING, backend), repeat=args.repeat)
         if cpu:
-            profile.append(_stats_row(f"{n} {w}x{h} forward", ext.last_stats(), threads, w * h))
+            profile.append(_stats_row(f"{n} {w}x{h} forward", ext.last_stats(), threads, w * h, ceiling))
         rows.append({"backend": backend, "splats": n, "image": f"{w}x{h}", "workload": "forward",
                      "ms": t["median_s"] * 1e3})
         tb = time_call(lambda: _fwd_bwd(splats, vm, K, w, h, backend), repeat=args.repeat)
         if cpu:
-            profile.append(_stats_row(f"{n} {w}x{h} backward", ext.last_stats(), threads, w * h))
+            profile.append(_stats_row(f"{n} {w}x{h} backward", ext.last_stats(), threads, w * h, ceiling))
         rows.append({"backend": backend, "splats": n, "image": f"{w}x{h}", "workload": "forward+backward",
                      "ms": tb["median_s"] * 1e3})
         if not cpu:
@@ -181,6 +187,6 @@ def _run_backend(args, backend: str, n: int, host_splats, ext, threads: int, row
     t = time_call(lambda: _fwd(batch_splats, vm, K, 160, 120, ("features",), backend), repeat=args.repeat)
     if cpu:
         profile.append(_stats_row(f"{n} 160x120 x{args.batch} batch", ext.last_stats(), threads,
-                                  args.batch * 160 * 120))
+                                  args.batch * 160 * 120, ceiling))
     rows.append({"backend": backend, "splats": n, "image": "160x120",
                  "workload": f"{args.batch}-camera 1-channel batch", "ms": t["median_s"] * 1e3})

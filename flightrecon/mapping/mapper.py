@@ -3,7 +3,9 @@
 One `add_frame` is the paper's per-timestep update (Section III-B): gamma-rejected initialization
 from the frame, K_new Adam iterations on it, then K_replay iterations each on a frame drawn at random
 (seeded) from the earlier ones, uniformly or favouring those trained longest ago
-(`MapperConfig.replay`).
+(`MapperConfig.replay`). With `k_new_stop` > 0 (not the paper's setting) the K_new iterations end
+once the frame's loss has fallen to that share of its first value (after `k_new_min`): a view the
+map already explains needs few.
 
 Pruning (`prune_opacity` > 0) drops the splats whose opacity fell below it after the update,
 every column with them (GaussianMap.keep: optimizer moments, reliability, the selectors'
@@ -106,7 +108,8 @@ class OnlineMapper:
         self.frames.append(frame)
         with profiling.stage("densify"):
             added = self._insert(rgb, depth, K, T_wc, index)
-        self._optimize(frame, self.cfg.k_new, count_observed=True)
+        self._optimize(frame, self.cfg.k_new, count_observed=True, stop_share=self.cfg.k_new_stop,
+                       min_iters=self.cfg.k_new_min)
         self._clock += 1
         self.last_trained.append(self._clock)
         self._replay(index, self.cfg.k_replay)
@@ -176,8 +179,10 @@ class OnlineMapper:
         self.map.append(frame=index, **{k: torch.from_numpy(v) for k, v in params.items()})
         return len(cand["points"])
 
-    def _optimize(self, frame: StoredFrame, iters: int, count_observed: bool = False) -> None:
-        """`iters` Adam iterations on one frame, on the splats that may reach its image.
+    def _optimize(self, frame: StoredFrame, iters: int, count_observed: bool = False, stop_share: float = 0.0,
+                  min_iters: int = 0) -> None:
+        """`iters` Adam iterations on one frame, on the splats that may reach its image; with
+        `stop_share` > 0, fewer once (after `min_iters`) the loss is at most that share of the first.
 
         Only splats the camera can see get gradient and updates, and the rest stay fixed during the
         call, so one conservative culling test at the start (_view_rows) picks every splat that could
@@ -199,6 +204,7 @@ class OnlineMapper:
             if len(rows) == 0:
                 return
             leaves = self.adam.gather(rows)
+        first_loss = None
         for it in range(iters):
             with profiling.stage("render"):
                 out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS)
@@ -211,6 +217,11 @@ class OnlineMapper:
                 if count_observed and it == 0:
                     self.map["n_observed"][rows[visible]] += 1
                 self.adam.step(leaves, visible, rows)
+            if stop_share > 0:  # the loss before this step, against the first one's
+                value = float(loss.detach())
+                first_loss = value if first_loss is None else first_loss
+                if it + 1 >= min_iters and value <= stop_share * first_loss:
+                    break
         with profiling.stage("view setup"):
             self.adam.scatter(rows, leaves)
 
