@@ -4,8 +4,9 @@ Off by default: `stage(name)` then returns one shared no-op context, so the mapp
 lookup per stage. Inside `profiling()` every stage adds its wall time to the active StageProfile,
 and the rasterizer adds its own phases (`add_kernel`: project, bin, blend, reduce, chain, and the
 pixel-splat evaluations), which the bench turns into exclusive per-stage times (`breakdown`).
-Stages nest (the rasterizer's kernel runs inside `render`), so a stage's recorded time includes
-the stages inside it.
+Stages nest (SSIM inside `loss`, the splat axes inside `render` and inside `view setup`): each
+stage's time includes the stages inside it, which are also summed per enclosing stage (`inner`), so
+`breakdown` reports exclusive times wherever a stage is called from.
 """
 
 from __future__ import annotations
@@ -22,11 +23,18 @@ class StageProfile:
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
         self.calls: dict[str, int] = defaultdict(int)
+        self.inner: dict[str, float] = defaultdict(float)  # per stage, the time of the stages inside it
         self.kernel: dict[str, float] = defaultdict(float)  # "forward.blend_s", "backward.evals", ...
+        self.open: list[str] = []  # the stages being timed, outermost first
 
-    def add(self, name: str, seconds: float) -> None:
+    def add(self, name: str, seconds: float, parent: str | None = None) -> None:
         self.seconds[name] += seconds
         self.calls[name] += 1
+        if parent is not None:
+            self.inner[parent] += seconds
+
+    def exclusive(self, name: str) -> float:
+        return self.seconds[name] - self.inner[name]
 
     def add_kernel(self, direction: str, stats: dict[str, float]) -> None:
         for key, value in stats.items():
@@ -43,10 +51,13 @@ class _Timer:
         self.profile, self.name = profile, name
 
     def __enter__(self) -> None:
+        self.profile.open.append(self.name)
         self.t0 = time.perf_counter()
 
     def __exit__(self, *exc) -> None:
-        self.profile.add(self.name, time.perf_counter() - self.t0)
+        seconds = time.perf_counter() - self.t0
+        self.profile.open.pop()
+        self.profile.add(self.name, seconds, self.profile.open[-1] if self.profile.open else None)
 
 
 class _NoTimer:
@@ -94,32 +105,27 @@ def breakdown(p: StageProfile, frames: int) -> list[dict]:
     iters = max(1, p.calls["render"])
     fwd_kernel = {name: k[f"forward.{name}_s"] for name in ("project", "bin", "sort", "blend")}
     bwd_kernel = {name: k[f"backward.{name}_s"] for name in ("project", "bin", "sort", "blend", "reduce", "chain")}
-    axes_fwd, axes_bwd = s["splat axes"], s["splat axes backward"]
-    ssim = s["ssim"] + s["ssim backward"]
-    normals = s["depth normals"] + s["depth normals backward"]
     iteration = {
-        "splat axes": axes_fwd + axes_bwd,
+        "splat axes": s["splat axes"] + s["splat axes backward"],  # in render, view setup and backward
         "project": fwd_kernel["project"] + bwd_kernel["project"],
         "bin and sort": fwd_kernel["bin"] + fwd_kernel["sort"] + bwd_kernel["bin"] + bwd_kernel["sort"],
         "forward blend": fwd_kernel["blend"],
-        "render other": s["render"] - axes_fwd - sum(fwd_kernel.values()),
-        "loss (L1, depth)": s["loss"] - s["ssim"] - s["depth normals"],
-        "SSIM": ssim,
-        "depth normals": normals,
+        "render other": p.exclusive("render") - sum(fwd_kernel.values()),
+        "loss (L1, depth)": p.exclusive("loss"),
+        "SSIM": s["ssim"] + s["ssim backward"],
+        "depth normals": s["depth normals"] + s["depth normals backward"],
         "backward blend": bwd_kernel["blend"],
         "backward reduce and chain": bwd_kernel["reduce"] + bwd_kernel["chain"],
-        "backward other": s["backward"] - sum(bwd_kernel.values()) - s["ssim backward"]
-        - s["depth normals backward"] - axes_bwd,
-        "optimizer step": s["optimizer step"],
+        "backward other": p.exclusive("backward") - sum(bwd_kernel.values()),
+        "optimizer step": p.exclusive("optimizer step"),
         # per optimization call: the target's masks and SSIM moments, the view's culling, the
         # gathered copy of its splats; a replay iteration is a call of its own
-        "view setup": s["view setup"],
+        "view setup": p.exclusive("view setup"),
     }
-    in_iterations = s["render"] + s["loss"] + s["backward"] + s["optimizer step"] + s["view setup"]
     per_frame = {
-        "densify": s["densify"],
-        "prune": s["prune"],
-        "other": s["add_frame"] - in_iterations - s["densify"] - s["prune"],
+        "densify": p.exclusive("densify"),
+        "prune": p.exclusive("prune"),
+        "other": p.exclusive("add_frame"),
     }
     total = max(s["add_frame"], 1e-12)
     rows = [{"stage": name, "ms_per_iteration": 1e3 * v / iters, "share": v / total}

@@ -31,6 +31,8 @@ def test_bench_render_reports_every_workload_with_its_peer(tmp_path):
     # the peer ran on the same inputs in the same run: its ratio is reported
     assert all(r["speedup_vs_ref"] > 0 for r in rows if r["workload"].startswith("reference"))
     assert result["machine"]["cores"] >= 1
+    stamp = result["provenance"]  # the commit, CPU and packages the figures came from
+    assert "commit" in stamp and stamp["cpu"]["model"] and stamp["packages"]["torch"]
 
 
 def test_bench_run_then_score_on_its_map(tmp_path):
@@ -48,6 +50,8 @@ def test_bench_run_then_score_on_its_map(tmp_path):
     assert {r["stage"] for r in result["rows"]} >= {"map", "select_update", "plan", "score"}
     assert result["splats"] > 0 and result["map_mb"] > 0 and result["wall_time_min"] > 0
     assert (run_dir / "metrics.json").is_file()
+    profile = {r["stage"]: r for r in result["map_profile"]}
+    assert profile["forward blend"]["ms_per_iteration"] > 0 and profile["densify"]["ms_per_frame"] > 0
     out = tmp_path / "score.json"
     assert main(["bench", "score", "--run", str(run_dir), "--sizes", "40x30", "--repeat", "1", "--threads", "1,2",
                  "--out", str(out)]) == 0

@@ -36,6 +36,10 @@ def test_profile_counts_every_iteration_and_no_stage_is_negative(views):
     assert prof.calls["view setup"] == 2 * (2 * (1 + 2))  # setup and write-back per call
     assert prof.calls["add_frame"] == prof.calls["densify"] == prof.calls["prune"] == 2
     assert prof.kernel["forward.evals"] >= prof.kernel["forward.blends"] > 0
+    # the splat axes run inside render and inside the view setup's culling: each enclosing stage
+    # knows the time spent inside it
+    assert prof.inner["render"] > 0 and prof.inner["view setup"] > 0 and prof.inner["loss"] > 0
+    assert prof.exclusive("render") < prof.seconds["render"]
     rows = profiling.breakdown(prof, frames=2)
     # exclusive times: a nested stage never takes more than the stage around it (timer resolution aside)
     assert all(r["share"] > -1e-3 for r in rows), rows

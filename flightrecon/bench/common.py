@@ -50,8 +50,11 @@ def contention_warning(info: dict) -> str | None:
 
 def report(name: str, rows: list[dict], out: str | None = None, extra: dict | None = None) -> dict:
     """Print rows as a Markdown table and optionally write them, with the machine, as JSON."""
+    from flightrecon import provenance
+
     info = machine()
-    result = {"bench": name, "machine": info, "rows": rows, **(extra or {})}
+    # the commit, the CPU model and the package versions it ran with, as every run folder records them
+    result = {"bench": name, "machine": info, "provenance": provenance.stamp(), "rows": rows, **(extra or {})}
     if rows:
         keys = list(dict.fromkeys(k for r in rows for k in r))
         print(f"\n## bench {name}\n")

@@ -5,7 +5,8 @@ Flies the scenario into a run folder (kept: `bench score --run` times scoring on
 a killed bench resumes with the same command, and the wall time then sums the segments' step
 times, as `metrics.json` does). Reports the run's wall time (the loop's steps plus the final
 evaluation), each stage's total and median per frame, the in-loop scoring time per feasible
-candidate (median over the flight), splats and map.ply size, and the evaluation metrics.
+candidate (median over the flight), splats and map.ply size, the evaluation metrics, and the
+mapping profile of `bench map` (flightrecon.profiling) over the frames this call flew.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import statistics
 import time
 from pathlib import Path
 
-from flightrecon import run_folder
+from flightrecon import profiling, run_folder
 from flightrecon.bench.common import report
 from flightrecon.config import load_config
 from flightrecon.mission import Mission
@@ -43,7 +44,8 @@ def run(args: argparse.Namespace) -> dict:
         mission = Mission.resume(run_dir)
     else:
         mission = Mission(cfg, run_dir)
-    metrics = mission.run()
+    with profiling.profiling() as prof:
+        metrics = mission.run()
     wall = time.perf_counter() - t0
     rows = mission.state.records
     stages = []
@@ -66,4 +68,6 @@ def run(args: argparse.Namespace) -> dict:
         "eval_psnr": ev.get("psnr"), "eval_depth_l1_cm": ev.get("depth_l1_cm"),
         "flight_distance_m": metrics["flight_distance_m"],
     }
+    # the mapping profile of the frames this call flew (a resumed run: of its remaining frames)
+    extra["map_profile"] = profiling.breakdown(prof, max(1, prof.calls["add_frame"]))
     return report("run", stages, getattr(args, "out", None), extra)
