@@ -242,7 +242,7 @@ def test_k_new_stop_ends_a_new_frames_iterations_once_its_loss_has_fallen_enough
     m = _mapper(k_new=30, k_replay=0)
     losses = []
     original = m._loss
-    m._loss = lambda out, target: losses.append(float(original(out, target))) or original(out, target)
+    m._loss = lambda out, target: losses.append(float(original(out, target).detach())) or original(out, target)
     m.add_frame(rgb, depth, K, T)
     share = losses[12] / losses[0] + 1e-6
     expected = next(i for i, v in enumerate(losses) if i + 1 >= 5 and v <= share * losses[0]) + 1

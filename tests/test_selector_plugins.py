@@ -3,6 +3,8 @@ installed as a user would (pip, its `flightrecon.selectors` entry point) and flo
 its own config section validated and written with the run, its map column saved, its stopping
 statistic and diagnosis used; a broken plug-in is reported by name and leaves the others working."""
 
+import csv
+import io
 import json
 import os
 import subprocess
@@ -81,8 +83,8 @@ def test_plugin_flies_three_frames_through_the_cli(site, tmp_path):
     assert "[unseen_view]\nwidth = 32\nheight = 24\npath_weight = 0.1\nseen_enough = 1" in config
     header = (run / "map.ply").read_bytes().split(b"end_header")[0].decode()
     assert "comment flightrecon column times_seen scalar" in header and "property float col_times_seen" in header
-    rows = (run / "frames.csv").read_text().splitlines()
-    ema = [float(line.split(",")[-1]) for line in rows[1:]]
+    rows = list(csv.DictReader(io.StringIO((run / "frames.csv").read_text())))
+    ema = [float(row["reliable_share_ema"]) for row in rows]
     assert len(ema) == 3 and all(0 <= e <= 1 for e in ema) and ema[-1] > 0  # its stopping statistic, smoothed
     assert "unseen_share" in (run / "diagnosis.csv").read_text().splitlines()[0]
 

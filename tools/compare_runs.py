@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Say whether two run folders hold the same flight: map.ply byte for byte, and frames.csv,
-trajectory.csv, diagnosis.csv and metrics.json with the wall-clock columns left out.
+trajectory.csv, diagnosis.csv and metrics.json with the wall-clock and thread-count columns left out.
 
 For refactors that must not change behaviour: fly the same seeded scenario before and after, then
 `python tools/compare_runs.py RUN_BEFORE RUN_AFTER` (exit status 1 on a difference)."""
@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-TIMING = ("t_", "wall_time", "mean_times")
+TIMING = ("t_", "wall_time", "mean_times", "threads")  # threads: sized to the machine's load (threads.FreeCores)
 
 
 def _timeless(name: str) -> bool:
