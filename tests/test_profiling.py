@@ -1,25 +1,12 @@
 """The mapping profile of `bench map`: stage timers over a real mapper, and the blend's ceiling probe."""
 
 import pytest
+from test_mapping_online import views  # noqa: F401  (the fixture: two MuJoCo RGB-D views of office0)
 
 from flightrecon import profiling
-from flightrecon.config import MapperConfig, load_config
-from flightrecon.geometry import camera_pose
+from flightrecon.config import MapperConfig
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.render.extension import load
-from flightrecon.scene.procedural import make_scene
-from flightrecon.sim.camera import RGBDCamera
-from flightrecon.sim.world import build_world
-
-W, H = 96, 72
-
-
-@pytest.fixture(scope="module")
-def views():
-    scene = make_scene("office0", 0)
-    cam = RGBDCamera(build_world(scene, load_config(None), with_drone=False), W, H, 90.0, 0.05, 10.0)
-    poses = [camera_pose([0.0, 0.0, 1.2], 0.5, 25.0), camera_pose([0.1, 0.1, 1.25], 0.8, 20.0)]
-    return cam.K, [(*cam.render(T), T) for T in poses]
 
 
 def test_profile_counts_every_iteration_and_no_stage_is_negative(views):
