@@ -66,26 +66,33 @@ void splat_consts(SplatGroups<S>& g, int64_t s) {
   g.freach[s] = rho_max > 0 ? S(std::min(FILTER_REACH, std::sqrt(rho_max / FILTER_INV_SQ))) : S(0);
 }
 
+// The sphere around n spheres (center_of(i): a pointer to 3 coordinates, radius_of(i)): the box
+// center of their centers, and a radius that holds each sphere, its center's offset scaled by `pad`.
+template <typename Center, typename Radius>
+void enclose(int64_t n, Center center_of, Radius radius_of, double pad, double* c) {
+  double lo[3], hi[3];
+  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = double(center_of(0)[a]);
+  for (int64_t i = 1; i < n; ++i)
+    for (int a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], double(center_of(i)[a]));
+      hi[a] = std::max(hi[a], double(center_of(i)[a]));
+    }
+  for (int a = 0; a < 3; ++a) c[a] = 0.5 * (lo[a] + hi[a]);
+  double r = 0;
+  for (int64_t i = 0; i < n; ++i) {
+    const auto* p = center_of(i);
+    const double dx = p[0] - c[0], dy = p[1] - c[1], dz = p[2] - c[2];
+    r = std::max(r, std::sqrt(dx * dx + dy * dy + dz * dz) * pad + double(radius_of(i)));
+  }
+  c[3] = r;
+}
+
 // Group k's sphere: its means' box center, and a radius that holds each splat's bounding sphere.
 template <typename S>
 void bound_group(SplatGroups<S>& g, int k) {
-  const int64_t s0 = g.begin(k), s1 = g.end(k);
-  double lo[3], hi[3];
-  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = g.mean[3 * s0 + a];
-  for (int64_t s = s0 + 1; s < s1; ++s)
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], double(g.mean[3 * s + a]));
-      hi[a] = std::max(hi[a], double(g.mean[3 * s + a]));
-    }
-  double* c = &g.sphere[4 * size_t(k)];
-  for (int a = 0; a < 3; ++a) c[a] = 0.5 * (lo[a] + hi[a]);
-  double r = 0;
-  for (int64_t s = s0; s < s1; ++s) {
-    const S* p = &g.mean[3 * s];
-    const double dx = p[0] - c[0], dy = p[1] - c[1], dz = p[2] - c[2];
-    r = std::max(r, std::sqrt(dx * dx + dy * dy + dz * dz) + double(g.rad[s]));
-  }
-  c[3] = r;
+  const int64_t s0 = g.begin(k);
+  enclose(g.end(k) - s0, [&](int64_t i) { return &g.mean[3 * (s0 + i)]; }, [&](int64_t i) { return g.rad[s0 + i]; },
+          1.0, &g.sphere[4 * size_t(k)]);
 }
 
 // Block b's sphere: its groups' centers' box center, and a radius that holds each group's sphere,
@@ -95,22 +102,9 @@ void bound_group(SplatGroups<S>& g, int k) {
 template <typename S>
 void bound_block(SplatGroups<S>& g, int b) {
   const int k0 = b * BLOCK, k1 = std::min(g.groups(), k0 + BLOCK);
-  double lo[3], hi[3];
-  for (int a = 0; a < 3; ++a) lo[a] = hi[a] = g.sphere[4 * size_t(k0) + a];
-  for (int k = k0 + 1; k < k1; ++k)
-    for (int a = 0; a < 3; ++a) {
-      lo[a] = std::min(lo[a], g.sphere[4 * size_t(k) + a]);
-      hi[a] = std::max(hi[a], g.sphere[4 * size_t(k) + a]);
-    }
-  double* c = &g.block[4 * size_t(b)];
-  for (int a = 0; a < 3; ++a) c[a] = 0.5 * (lo[a] + hi[a]);
-  double r = 0;
-  for (int k = k0; k < k1; ++k) {
-    const double* q = &g.sphere[4 * size_t(k)];
-    const double dx = q[0] - c[0], dy = q[1] - c[1], dz = q[2] - c[2];
-    r = std::max(r, std::sqrt(dx * dx + dy * dy + dz * dz) * (1.0 + 2e-4) + q[3]);
-  }
-  c[3] = r;
+  const double* spheres = &g.sphere[4 * size_t(k0)];
+  enclose(k1 - k0, [&](int64_t i) { return spheres + 4 * i; }, [&](int64_t i) { return spheres[4 * i + 3]; },
+          1.0 + 2e-4, &g.block[4 * size_t(b)]);
 }
 
 // ---------------------------------------------------------------- frustum tests

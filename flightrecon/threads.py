@@ -80,7 +80,6 @@ class FreeCores:
 
         self._torch = torch
         self.limit = torch.get_num_threads()
-        self.cores = min(self.limit, available_cores())
         self._last = self._sample()
 
     @staticmethod
