@@ -9,6 +9,7 @@ import statistics
 import time
 from typing import Any, Callable
 
+from flightrecon.errors import FlightReconError
 from flightrecon.fileio import write_json
 
 
@@ -23,6 +24,19 @@ def time_call(fn: Callable[[], Any], repeat: int = 5, warmup: int = 1) -> dict:
         samples.append(time.perf_counter() - t0)
     return {"median_s": statistics.median(samples), "min_s": min(samples), "max_s": max(samples),
             "repeat": repeat}
+
+
+def thread_counts(spec: str, option: str) -> list[int]:
+    """Comma-separated thread counts of a bench option (`option` names it in the message); [] for ''."""
+    if not spec.strip():
+        return []
+    try:
+        counts = [int(v) for v in spec.split(",")]
+    except ValueError:
+        raise FlightReconError(f"{option} {spec!r}: give thread counts, e.g. 1,2") from None
+    if min(counts) < 1:
+        raise FlightReconError(f"{option} {spec!r}: thread counts must be >= 1")
+    return counts
 
 
 def machine() -> dict:

@@ -34,7 +34,7 @@ from flightrecon.mapping.ply import save_map
 from flightrecon.metric_defs import mean_metrics
 from flightrecon.render.extension import load
 
-from flightrecon.bench.common import report
+from flightrecon.bench.common import report, thread_counts
 
 
 NOT_IN_ALL = "needs --dataset"
@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> dict:
         raise SystemExit("bench map: give --dataset DIR (record one with `flightrecon fly office0 --survey`)")
     torch.set_num_threads(args.threads)
     cfg = load_config(args.scenario, args.overrides)
+    scaling = thread_counts(args.scaling, "bench map --scaling")  # a bad value fails before training
     ceiling = load().blend_ceiling(1.0)
     rows, profiles = [], {}
     for path in args.dataset:
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> dict:
                     views.append(m)
                 row.update({f"{split}_{k}": v for k, v in mean_metrics(views).items()})
         row.update({f"ms_per_replay_iteration_{n}_threads": ms for n, ms in
-                    _scaling(res, args.scaling, args.scaling_iterations).items()})
+                    _scaling(res, scaling, args.scaling_iterations).items()})
         torch.set_num_threads(args.threads)
         rows.append(row)
     result = report("map", rows, None, extra={"note": "wall times on a shared machine; see machine.cores",
@@ -109,11 +110,10 @@ def run(args: argparse.Namespace) -> dict:
     return result
 
 
-def _scaling(res, spec: str, iterations: int) -> dict[int, float]:
+def _scaling(res, counts: list[int], iterations: int) -> dict[int, float]:
     """Median ms of one replay iteration (`refine(1)`: a stored frame, its view setup, one step) on the
     trained map, per thread count. The replay draws are the mapper's own, so every count sees
     different frames: the medians compare, single samples do not."""
-    counts = [int(c) for c in spec.split(",") if c.strip()]
     out = {}
     for n in counts if res.mapper.frames else []:
         torch.set_num_threads(n)

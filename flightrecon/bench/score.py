@@ -28,7 +28,7 @@ from flightrecon.active.protocol import MapView, Observation, scoring_intrinsics
 from flightrecon.active.registry import make_selector
 from flightrecon.active.selectors import GaussMI2D
 from flightrecon.bench.active import library_poses
-from flightrecon.bench.common import report, time_call
+from flightrecon.bench.common import report, thread_counts, time_call
 from flightrecon.errors import FlightReconError
 from flightrecon.mapping.frames import expand_frame
 from flightrecon.mission import Mission
@@ -58,19 +58,6 @@ def _sizes(spec: str, mission: Mission) -> list[tuple[int, int]]:
         return [tuple(int(v) for v in part.lower().split("x")) for part in spec.split(",")]  # type: ignore[misc]
     except ValueError:
         raise FlightReconError(f"bench score: --sizes {spec!r}: give WxH pairs, e.g. 160x120,640x480") from None
-
-
-def _thread_counts(spec: str) -> list[int]:
-    """The --threads counts; by default 1 and the current count, so one run shows the scaling."""
-    if not spec:
-        return sorted({1, torch.get_num_threads()})
-    try:
-        counts = [int(v) for v in spec.split(",")]
-    except ValueError:
-        raise FlightReconError(f"bench score: --threads {spec!r}: give thread counts, e.g. 1,2") from None
-    if not counts or min(counts) < 1:
-        raise FlightReconError(f"bench score: --threads {spec!r}: thread counts must be >= 1")
-    return counts
 
 
 def _profile(poses: np.ndarray) -> dict:
@@ -151,7 +138,7 @@ def run(args: argparse.Namespace) -> dict:
     before = torch.get_num_threads()
     rows, baselines = [], []
     try:
-        for threads in _thread_counts(args.threads):
+        for threads in thread_counts(args.threads, "bench score --threads") or sorted({1, torch.get_num_threads()}):
             torch.set_num_threads(threads)  # the extension runs in torch's OpenMP runtime: this sets both
             rows += [_ours(mission, poses, w, h, args.repeat, threads) for w, h in sizes]
         ours_at_scoring = rows[-len(sizes)]["culled_ms"]  # the scoring resolution at the last count
