@@ -3,6 +3,7 @@ evaluation, every table and figure file; a second run skips the finished runs.""
 
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -177,3 +178,75 @@ def test_tables_say_loudly_when_their_runs_mix_code_states(tmp_path):
     summary = (tmp_path / "summary.md").read_text()
     assert "**MIXED CODE" in summary and "- c1: 3 run(s)" in summary and "- unstamped: 1 run(s)" in summary
     assert "resumed across a code change: a/random/seed0" in summary
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def two_ray_nodes(tmp_path, monkeypatch):
+    """A Ray cluster of two nodes on this machine, one CPU each, each started by `ray start` in its own
+    working folder with its own node-local run root ($FLIGHTRECON_NODE_RUNS): what two machines
+    without a shared file system look like to the sweep."""
+    import os
+    import subprocess
+    import sys
+
+    import ray
+
+    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    ray_cli = str(Path(sys.executable).parent / "ray")
+    address = f"127.0.0.1:{_free_port()}"
+    folders = {name: tmp_path / f"node_{name}" for name in ("a", "b")}
+    started = []
+    try:
+        for name, folder in folders.items():
+            folder.mkdir()
+            env = dict(os.environ, FLIGHTRECON_NODE_RUNS=str(folder / "runs"))
+            head = ["--head", f"--port={address.split(':')[1]}", "--include-dashboard=false"]
+            args = head if not started else [f"--address={address}"]
+            subprocess.run([ray_cli, "start", *args, "--num-cpus=1", "--disable-usage-stats"], cwd=folder,
+                           env=env, check=True, capture_output=True, timeout=120)
+            started.append(name)
+        ray.init(address=address, log_to_driver=False)
+        yield folders
+    finally:
+        ray.shutdown()
+        if started:
+            subprocess.run([ray_cli, "stop", "--force"], capture_output=True, timeout=120)
+
+
+@pytest.mark.slow
+def test_ray_nodes_without_a_shared_file_system_send_each_runs_result_files_back(tmp_path, two_ray_nodes):
+    from flightrecon.experiments.ray_nodes import RESULT_FILES
+
+    root = tmp_path / "driver_runs"
+    specs = plan_runs("demo", ["room0"], ["random"], 2, TINY + ["budget.frames=2"], str(root))
+    (specs[1].run_dir).mkdir(parents=True)
+    (specs[1].run_dir / "failed.txt").write_text("an earlier try\n")  # stale: the new result replaces it
+    out = execute(specs, executor="ray", transfer="always", log=lambda s: None, retry_failed=True)
+    assert [d for d, _ in out] == [str(s.run_dir) for s in specs]
+    assert all("results copied back" in what for _, what in out)
+    flown = {}
+    for name, folder in two_ray_nodes.items():  # each node flew one run in its own folder
+        flown[name] = sorted(p.parent for p in (folder / "runs").rglob("map.ply"))
+    assert sorted(len(v) for v in flown.values()) == [1, 1]
+    for spec in specs:
+        here = sorted(p.name for p in spec.run_dir.iterdir())
+        assert "map.ply" not in here and "checkpoint.npz" not in here and "failed.txt" not in here
+        assert {"eval.json", "metrics.json", "frames.csv", "provenance.json", "config.toml"} <= set(here)
+        node_dir, = [d for dirs in flown.values() for d in dirs if d.name == spec.run_dir.name]
+        for name in here:
+            assert name in RESULT_FILES
+            assert (spec.run_dir / name).read_bytes() == (node_dir / name).read_bytes()
+        assert status(spec) == "done"
+    recs = collect([s.run_dir for s in specs])  # the report reads the copied files alone
+    assert len(recs) == 2 and all(r["psnr"] > 0 for r in recs)
+    assert [w for _, w in execute(specs, executor="ray", transfer="always", log=lambda s: None)] == [
+        "skipped (finished)"] * 2

@@ -35,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--executor", choices=("local", "ray"), default="local",
                    help="local process pool, or a Ray cluster (--ray-address; default a local instance)")
     p.add_argument("--ray-address", default=None, help="address of a running Ray cluster")
+    p.add_argument("--ray-transfer", choices=("auto", "always", "never"), default="auto",
+                   help="copy each finished run's result files (not its maps or checkpoints) back to the run "
+                        "root: auto from nodes that cannot see it (no shared file system), always, or never")
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value for every run (repeatable)")
     p.add_argument("--run-root", default=None, help="root folder of the runs (default: output.run_root)")
@@ -55,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
         args.methods = methods_with_role("method", "baseline", "floor")
     specs = plan_runs(args.scenario, args.scenes, args.methods, args.seeds, args.overrides, args.run_root)
     execute(specs, args.jobs, args.executor, args.ray_address, log=lambda s: print(s, flush=True),
-            max_runs=args.max_runs, retry_failed=args.retry_failed, allow_code_change=args.allow_code_change)
+            max_runs=args.max_runs, retry_failed=args.retry_failed, allow_code_change=args.allow_code_change,
+            transfer=args.ray_transfer)
     report = Path(args.report) if args.report else specs[0].run_dir.parents[2] / "report"
     recs = collect([s.run_dir for s in specs])
     failed = {str(s.run_dir): why for s in specs if (why := failure(s)) is not None}

@@ -7,7 +7,8 @@ map.ply but no eval.json is only evaluated; a run with a checkpoint continues wi
 with the reason beside its checkpoint: the sweep goes on with the other runs, reports it, and skips
 it on later calls unless told to retry (after the cause is fixed, it resumes from the checkpoint).
 Executors: `local` (a process pool of `jobs` workers, inline when jobs = 1) or `ray` (the same task
-on a Ray cluster, local or `ray_address`).
+on a Ray cluster, local or `ray_address`; nodes without the driver's file system send the result
+files back: `experiments.ray_nodes`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 from flightrecon import run_folder
 from flightrecon.config import load_config
 from flightrecon.errors import FlightReconError
+from flightrecon.experiments import ray_nodes
 from flightrecon.fileio import write_text
 from flightrecon.memory import keep_freed_memory
 from flightrecon.threads import available_cores
@@ -115,10 +117,15 @@ def run_one(spec: RunSpec, threads: int = 0, allow_code_change: bool = False) ->
 
 def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_address: str | None = None,
             log=print, max_runs: int | None = None, retry_failed: bool = False,
-            allow_code_change: bool = False) -> list[tuple[str, str]]:
+            allow_code_change: bool = False, transfer: str = "auto") -> list[tuple[str, str]]:
     """Run the specs; finished runs, and failed ones unless `retry_failed`, are skipped without
     starting a worker. With `max_runs`, only the first that many unfinished runs are brought to an
-    end (one part of a sweep too long for one sitting; the next call continues with the rest)."""
+    end (one part of a sweep too long for one sitting; the next call continues with the rest).
+    `transfer` (ray only): copy result files back from nodes that cannot see the run root (auto),
+    from every node (always), or never."""
+    if transfer not in ray_nodes.TRANSFER_MODES:
+        raise FlightReconError(f"sweep: transfer must be one of {', '.join(ray_nodes.TRANSFER_MODES)}, "
+                               f"got {transfer!r}")
     skip = {"done"} if retry_failed else {"done", "failed"}
     states = [status(s) for s in specs]
     todo = [s for s, state in zip(specs, states) if state not in skip]
@@ -134,7 +141,7 @@ def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_ad
     if not todo:
         return done
     if executor == "ray":
-        return done + _execute_ray(todo, threads, ray_address, log, allow_code_change)
+        return done + _execute_ray(todo, threads, ray_address, log, allow_code_change, transfer)
     if jobs <= 1:
         out = []
         for s in todo:
@@ -150,7 +157,7 @@ def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_ad
 
 
 def _execute_ray(todo: list[RunSpec], threads: int, address: str | None, log,
-                 allow_code_change: bool) -> list[tuple[str, str]]:
+                 allow_code_change: bool, transfer: str) -> list[tuple[str, str]]:
     try:
         import ray
     except ImportError:
@@ -159,12 +166,21 @@ def _execute_ray(todo: list[RunSpec], threads: int, address: str | None, log,
     if started:
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
     try:
-        task = ray.remote(num_cpus=1)(run_one)
+        tokens = {root: ray_nodes.write_token(root) for root in {s.run_root for s in todo}}
+        task = ray.remote(num_cpus=1)(ray_nodes.run_on_node)
+        pending = {task.remote(s, threads, allow_code_change, tokens[s.run_root], transfer,
+                               ray_nodes.resolved_scenario(s)): s for s in todo}
         out = []
-        for r in ray.get([task.remote(s, threads, allow_code_change) for s in todo]):
-            out.append(tuple(r))
-            log(f"{r[0]}: {r[1]}")
-        return out
+        while pending:  # each run's files land as soon as it ends: a killed driver keeps what came back
+            (ready,), _ = ray.wait(list(pending), num_returns=1)
+            pending.pop(ready)
+            run_dir, what, files = ray.get(ready)
+            if files is not None:
+                ray_nodes.receive(run_dir, files)
+            out.append((run_dir, what))
+            log(f"{run_dir}: {what}")
+        order = {str(s.run_dir): i for i, s in enumerate(todo)}
+        return sorted(out, key=lambda r: order[r[0]])
     finally:
         if started:
             ray.shutdown()
