@@ -80,3 +80,30 @@ def test_in_bounds_drops_candidates_outside_the_workspace():
     keep = in_bounds(pos, np.array([[-5.0, -5.0, 0.0], [5.0, 5.0, 3.0]]))
     np.testing.assert_array_equal(keep, pos[:, 2] >= 0.0)
     assert (~keep).sum() == 18  # the 18 headings of the step down
+
+
+def test_no_stay_library_is_the_default_without_the_current_pose():
+    lib = load_library("no_stay")
+    pos, yaw = lib.poses(np.array([1.0, -2.0, 1.2]), 0.7)
+    assert len(lib) == 197
+    assert not np.any(np.all(np.isclose(np.c_[pos, yaw], [1.0, -2.0, 1.2, 0.7]), axis=1))
+    turns_in_place = np.isclose(np.linalg.norm(pos - [1.0, -2.0, 1.2], axis=1), 0.0)
+    assert turns_in_place.sum() == 17  # the other 17 headings of the current position stay
+
+
+def test_gaussmi_library_counts_and_reach_of_its_public_code():
+    # active_manage.py init_view_lib: 5x3x3-3 basic, 4x3 high, 6x4 wide-turn and 4x2x2 aggressive samples (its comment says 8 of the last; it builds 16)
+    lib = load_library("gaussmi")
+    assert len(lib) == (5 * 3 - 1) * 3 + 4 * 3 + 6 * 4 + 4 * 2 * 2 == 94
+    p0, yaw0 = np.array([0.0, 0.0, 1.5]), 0.3
+    pos, yaw = lib.poses(p0, yaw0)
+    step = pos - p0
+    lateral = np.linalg.norm(step[:, :2], axis=1)
+    assert np.isclose(lateral.max(), 1.2) and np.isclose(np.abs(step[:, 2]).max(), 1.2)
+    assert np.all(lateral + np.abs(step[:, 2]) > 0.25)  # never the current position
+    turns = np.degrees(np.array([math.remainder(y - yaw0, 2 * math.pi) for y in yaw]))
+    assert set(np.round(np.abs(turns)).astype(int)) == {0, 40, 80, 120, 160}
+    # each move is sideways in the turned frame (GauSS-MI: + (-dy sin yaw', dy cos yaw', dz))
+    heading = np.c_[np.cos(yaw), np.sin(yaw)]
+    np.testing.assert_allclose(np.sum(step[:, :2] * heading, axis=1), 0.0, atol=1e-12)
+    assert len(np.unique(np.round(np.c_[pos, yaw], 6), axis=0)) == 94

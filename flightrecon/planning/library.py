@@ -7,7 +7,13 @@ yaw' = yaw + dyaw, then the position moves by (forward, left) in the frame of th
 The default library is the paper's 198 candidates: 11 position offsets (stay; 0.3 and 0.6 m forward,
 backward, left and right; 0.4 m up and down; GauSS-MI's step units) times 18 headings (every 20 deg
 over the full turn). Because offsets are taken in the turned frame, the candidates spread over rings
-of radius 0.3 m and 0.6 m around the drone at 36 bearings. A user library is a TOML file:
+of radius 0.3 m and 0.6 m around the drone at 36 bearings.
+
+Built-in alternatives, for ablations: `no_stay` is the default without the current pose itself (197;
+GauSS-MI's library never offers it), and `gaussmi` is GauSS-MI's own action library as its public
+code builds it (active_manage.py `init_view_lib`: 94 sideways/vertical/turn actions in units of
+0.3 m, 0.4 m and 40 deg, reaching 1.2 m sideways and 1.2 m vertically; no forward step, no stay and
+no turn in place). A user library is a TOML file:
 
     [[candidate]]
     forward = 0.3   # m, all keys optional (default 0)
@@ -29,6 +35,7 @@ from flightrecon.errors import ConfigError
 
 STEP_XY = 0.3  # m (GauSS-MI's lateral unit)
 STEP_Z = 0.4  # m (GauSS-MI's vertical unit)
+STEP_YAW_DEG = 40.0  # GauSS-MI's yaw unit
 N_HEADINGS = 18
 _KEYS = ("forward", "left", "up", "yaw_deg")
 
@@ -73,10 +80,30 @@ def default_library() -> ViewpointLibrary:
     return ViewpointLibrary(offsets, "default")
 
 
+def no_stay_library() -> ViewpointLibrary:
+    """The default library without the candidate that is the current pose (zero offset, zero turn)."""
+    offsets = default_library().offsets
+    return ViewpointLibrary(offsets[np.any(offsets != 0.0, axis=1)], "no_stay")
+
+
+def gaussmi_library() -> ViewpointLibrary:
+    """GauSS-MI's 94 actions (sideways dy, vertical dz, turn dyaw) in its units, as (0, dy, dz, dyaw)."""
+    actions = [(y, z, w) for y in (-2, -1, 0, 1, 2) for z in (-1, 0, 1) if (y, z) != (0, 0) for w in (-1, 0, 1)]
+    actions += [(0, z, w) for z in (-3, -2, 2, 3) for w in (-1, 0, 1)]  # high
+    actions += [(y, 0, w) for y in (-3, -2, -1, 1, 2, 3) for w in (-3, -2, 2, 3)]  # wide turns
+    actions += [(y, z, w) for y in (-4, -3, 3, 4) for z in (-3, 3) for w in (-4, 4)]  # aggressive
+    offsets = np.array([(0.0, y * STEP_XY, z * STEP_Z, math.radians(w * STEP_YAW_DEG)) for y, z, w in actions])
+    return ViewpointLibrary(offsets, "gaussmi")
+
+
+BUILT_IN = {"default": default_library, "no_stay": no_stay_library, "gaussmi": gaussmi_library}
+
+
 def load_library(spec: str) -> ViewpointLibrary:
-    """'default' or the path of a TOML file of [[candidate]] tables (see the module docstring)."""
-    if spec == "default":
-        return default_library()
+    """A built-in library by name (default, no_stay, gaussmi) or the path of a TOML file of
+    [[candidate]] tables (see the module docstring)."""
+    if spec in BUILT_IN:
+        return BUILT_IN[spec]()
     path = Path(spec)
     data = read_toml(path, "planner.library: candidate file")
     extra = sorted(set(data) - {"candidate"})
