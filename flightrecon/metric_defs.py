@@ -65,6 +65,10 @@ METRICS: dict[str, Metric] = {m.key: m for m in (
     Metric("precision", "Precision", "", True, 3),
     Metric("recall", "Recall", "", True, 3),
     Metric("fscore", "F-score", "", True, 3),
+    # over a flight (experiments.report): the mean of PSNR over the frame budget, and PSNR at the
+    # mission time the quickest of the compared runs of a scene needed for the whole budget
+    Metric("psnr_auc", "PSNR AUC", "dB", True, 2),
+    Metric("psnr_equal_time", "PSNR eq. time", "dB", True, 2),
 )}
 
 SUMMARY = ("psnr", "ssim", "depth_l1_cm")  # what a command prints when a map is done

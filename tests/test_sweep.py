@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flightrecon.experiments.report import collect, ranking_over_frames, write_figures, write_tables
+from flightrecon.experiments.report import (add_equal_time_psnr, collect, ranking_over_frames, write_figures,
+                                             write_tables)
 from flightrecon.experiments.sweep import execute, failure, plan_runs, status
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
@@ -178,6 +179,45 @@ def test_tables_say_loudly_when_their_runs_mix_code_states(tmp_path):
     summary = (tmp_path / "summary.md").read_text()
     assert "**MIXED CODE" in summary and "- c1: 3 run(s)" in summary and "- unstamped: 1 run(s)" in summary
     assert "resumed across a code change: a/random/seed0" in summary
+
+
+def test_psnr_auc_is_the_trapezoid_mean_over_the_evaluated_frames():
+    from flightrecon.experiments.report import psnr_auc
+
+    y = np.full(90, np.nan)
+    y[[0, 30, 60, 89]] = [4.0, 18.0, 21.0, 23.0]
+    # by hand: (4+18)/2*30 + (18+21)/2*30 + (21+23)/2*29 = 330 + 585 + 638 = 1553 over 89 frames
+    assert psnr_auc(y) == pytest.approx(1553 / 89)
+    assert np.isnan(psnr_auc(np.array([np.nan, 20.0])))  # one evaluation: no curve
+
+
+def test_psnr_at_equal_time_interpolates_each_run_at_its_scenes_quickest_end():
+    def rec(method, scene, times, psnrs):
+        y = np.full(len(times), np.nan)
+        y[[0, 2, 4]] = psnrs
+        return {"method": method, "scene": scene, "series": {"sim_time": np.array(times, float), "eval_psnr": y}}
+
+    quick = rec("a", "x", [0, 10, 20, 30, 40], [5.0, 15.0, 25.0])  # ends at 40 s
+    slow = rec("b", "x", [0, 20, 40, 60, 80], [5.0, 20.0, 30.0])  # at 40 s it had its frame-2 evaluation
+    slower = rec("c", "x", [0, 30, 60, 90, 120], [5.0, 17.0, 29.0])  # 40 s lies between 0 and 60 s
+    other_scene = rec("a", "y", [0, 50, 100, 150, 200], [6.0, 16.0, 26.0])  # its own T = 200 s
+    late = rec("b", "y", [300, 310, 320, 330, 340], [1.0, 2.0, 3.0])  # never evaluated by T
+    add_equal_time_psnr([quick, slow, slower, other_scene, late])
+    assert quick["psnr_equal_time"] == 25.0 and slow["psnr_equal_time"] == 20.0
+    assert slower["psnr_equal_time"] == pytest.approx(5.0 + 12.0 * 40 / 60)
+    assert other_scene["psnr_equal_time"] == 26.0 and np.isnan(late["psnr_equal_time"])
+
+
+def test_scene_variants_are_scenes_of_their_own_with_their_own_folders(tmp_path):
+    specs = plan_runs("sweep_cpu", ["room0", "office1"], ["random"], 1, [], str(tmp_path), scene_seeds=[2, 3])
+    assert [s.run_dir.relative_to(tmp_path).as_posix() for s in specs] == [
+        "sweep_cpu/room0.v2/random/seed0", "sweep_cpu/room0.v3/random/seed0",
+        "sweep_cpu/office1.v2/random/seed0", "sweep_cpu/office1.v3/random/seed0"]
+    assert [s.config().scene.seed for s in specs] == [2, 3, 2, 3]
+    assert [s.config().scene.name for s in specs] == ["room0", "room0", "office1", "office1"]
+    plain, = plan_runs("sweep_cpu", ["room0"], ["random"], 1, ["scene.seed=1"], str(tmp_path))
+    assert plain.run_dir.relative_to(tmp_path).as_posix() == "sweep_cpu/room0/random/seed0"
+    assert plain.config().scene.seed == 1
 
 
 def _free_port() -> int:

@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="selector names (selector.method values; default: every registered method, baseline "
                         "and floor, without the ablations: `flightrecon selectors` lists them)")
     p.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1 per scene and method (default 3)")
+    p.add_argument("--scene-seeds", type=int, nargs="+", default=None, metavar="K",
+                   help="fly each scene's variants scene.seed = K... (each a scene of its own in the report, "
+                        "folder <scene>.v<K>); default: the scenario's scene.seed")
     p.add_argument("--jobs", type=int, default=1, help="runs in parallel (default 1)")
     p.add_argument("--max-runs", type=int, default=None,
                    help="bring at most this many unfinished runs to an end, then report what is finished "
@@ -56,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
         from flightrecon.active.registry import methods_with_role
 
         args.methods = methods_with_role("method", "baseline", "floor")
-    specs = plan_runs(args.scenario, args.scenes, args.methods, args.seeds, args.overrides, args.run_root)
+    specs = plan_runs(args.scenario, args.scenes, args.methods, args.seeds, args.overrides, args.run_root,
+                      args.scene_seeds)
     execute(specs, args.jobs, args.executor, args.ray_address, log=lambda s: print(s, flush=True),
             max_runs=args.max_runs, retry_failed=args.retry_failed, allow_code_change=args.allow_code_change,
             transfer=args.ray_transfer)

@@ -5,7 +5,9 @@ Tables (each as .md, .csv and .tex): `overall` (per method, mean over scenes and
 on covered ones), `paired_<method>` for every method under study (selectors whose role is
 "method": every other method's paired difference to it, over all scenes and per scene, with its 95%
 interval: the same scenes and seeds are paired, and over all scenes the unit is the scene with its
-seeds averaged; * where it excludes zero),
+seeds averaged; * where it excludes zero; with two flight-long endpoints: `psnr_auc`, the mean PSNR
+over the frame budget, and `psnr_equal_time`, PSNR at the mission time the quickest compared run of
+the scene needed for the whole budget),
 `per_scene` (PSNR, D-L1, F-score per method and scene, mean and interval over seeds),
 `efficiency` (per-candidate evaluation time, selector update time, model size), `ranking` (methods ranked at each in-flight
 evaluation over the runs every method finished), and `summary.md` (what is compared, the run counts,
@@ -50,7 +52,7 @@ SHARED_PIPELINE = ("Every method here flies with the same 2DGS mapper, planner, 
                    "simulator and evaluation: only the view-selection criterion differs. The paper ran "
                    "GauSS-MI and FisherRF on a 3DGS pipeline and ActiveGS with its own planner, so its "
                    "comparison also mixes in those differences; this one isolates the criterion.")
-PAIRED = select("psnr", "psnr_covered", "depth_l1_cm", "completion_cm", "fscore")
+PAIRED = select("psnr", "psnr_covered", "depth_l1_cm", "completion_cm", "fscore", "psnr_auc", "psnr_equal_time")
 
 
 def _read_frames(path: Path) -> list[dict]:
@@ -78,7 +80,9 @@ def collect(run_dirs: list[Path]) -> list[dict]:
         scored = [(_num(r["t_score"]), _num(r["n_feasible"])) for r in rows if _num(r.get("n_feasible")) > 1]
         n_cand = sum(n for _, n in scored)
         series = {k: np.array([_num(r.get(k)) for r in rows]) for k in
-                  ("eval_psnr", "eval_depth_l1_cm", "t_score", "n_feasible")}
+                  ("eval_psnr", "eval_depth_l1_cm", "t_score", "n_feasible", "sim_time")}
+        if len(rows):
+            series["eval_psnr"][-1] = _num(ev.get("psnr"))  # the final evaluation is the last frame's
         over = _read_frames(d / run_folder.OVER_FRAMES) if (d / run_folder.OVER_FRAMES).is_file() else []
         for m in SNAPSHOT:
             series[f"eval_{m.key}"] = _snapshot_series(over, len(rows), ev, m.key)
@@ -89,8 +93,37 @@ def collect(run_dirs: list[Path]) -> list[dict]:
             "ms_update": 1000 * met["mean_times_s"].get("t_select_update", math.nan),
             "s_per_frame": met["wall_time_s"] / max(1, met["frames"]), "frames": met["frames"],
             "series": series, "checkpoints": _checkpoints(over, len(rows), ev),
+            "psnr_auc": psnr_auc(series["eval_psnr"]),
         })
+    add_equal_time_psnr(recs)
     return recs
+
+
+def psnr_auc(eval_psnr: np.ndarray) -> float:
+    """Mean PSNR over the frame budget: the trapezoid area under PSNR over frames, between the first
+    and the last evaluated frame, divided by their distance (NaN with fewer than two evaluations)."""
+    frames = np.flatnonzero(np.isfinite(eval_psnr))
+    if len(frames) < 2:
+        return math.nan
+    y = eval_psnr[frames]
+    return float(np.sum((y[1:] + y[:-1]) * np.diff(frames)) / 2 / (frames[-1] - frames[0]))
+
+
+def add_equal_time_psnr(recs: list[dict]) -> None:
+    """Set each record's `psnr_equal_time`: its PSNR at the mission time T by which the quickest
+    run of its scene (any method, any seed) finished the frame budget, linear between its
+    evaluations in mission time (`sim_time`); NaN for a run never evaluated at or before T."""
+    ends: dict[str, float] = {}
+    for r in recs:
+        t = r["series"]["sim_time"]
+        if len(t) and math.isfinite(t[-1]):
+            ends[r["scene"]] = min(ends.get(r["scene"], math.inf), float(t[-1]))
+    for r in recs:
+        y, t = r["series"]["eval_psnr"], r["series"]["sim_time"]
+        ok = np.isfinite(y) & np.isfinite(t)
+        T = ends.get(r["scene"], math.nan)
+        r["psnr_equal_time"] = (float(np.interp(T, t[ok], y[ok])) if ok.any() and t[ok][0] <= T
+                                else math.nan)
 
 
 def _snapshot_series(over: list[dict], n_frames: int, final: dict, key: str) -> np.ndarray:

@@ -1,7 +1,8 @@
 """Run every (scene, method, seed) of a sweep: fly, evaluate, skip what is done, resume what was killed.
 
 Run folders: <output.run_root>/<scenario>/<scene>/<method>/seed<k>/ (the scene level keeps the
-eight scenes of one scenario apart). A run is finished when its eval.json exists; a run with a
+eight scenes of one scenario apart); a sweep over scene variants (`scene_seeds`) names the scene
+level <scene>.v<scene seed>, so each variant is a scene of its own to the report (its unit). A run is finished when its eval.json exists; a run with a
 map.ply but no eval.json is only evaluated; a run with a checkpoint continues with
 `Mission.resume`. A flight that stops with an error (it diverged, or met bad data) leaves failed.txt
 with the reason beside its checkpoint: the sweep goes on with the other runs, reports it, and skips
@@ -35,24 +36,32 @@ class RunSpec:
     seed: int
     overrides: tuple[str, ...]
     run_root: str
+    scene_seed: int | None = None  # the scene variant (scene.seed); None: the scenario's own
+
+    @property
+    def scene_folder(self) -> str:
+        return self.scene if self.scene_seed is None else f"{self.scene}.v{self.scene_seed}"
 
     @property
     def run_dir(self) -> Path:
-        return Path(self.run_root) / Path(self.scenario).stem / self.scene / self.method / f"seed{self.seed}"
+        return Path(self.run_root) / Path(self.scenario).stem / self.scene_folder / self.method / f"seed{self.seed}"
 
     def config(self):
-        return load_config(self.scenario, list(self.overrides) + [
+        variant = [] if self.scene_seed is None else [f"scene.seed={self.scene_seed}"]
+        return load_config(self.scenario, list(self.overrides) + variant + [
             f"scene.name={self.scene}", f"selector.method={self.method}", f"seed={self.seed}",
             "output.record=false", "evaluation.snapshots=true"])
 
 
 def plan_runs(scenario: str, scenes: list[str], methods: list[str], seeds: int, overrides: list[str],
-              run_root: str | None = None) -> list[RunSpec]:
-    """Every combination, with config errors raised now (before anything runs)."""
+              run_root: str | None = None, scene_seeds: list[int] | None = None) -> list[RunSpec]:
+    """Every combination (of scene variants too, with `scene_seeds`), with config errors raised now
+    (before anything runs)."""
     base = load_config(scenario, overrides)
     root = run_root or base.output.run_root
-    specs = [RunSpec(scenario, sc, m, k, tuple(overrides), root) for sc in scenes for m in methods
-             for k in range(seeds)]
+    variants = [None] if scene_seeds is None else list(dict.fromkeys(scene_seeds))
+    specs = [RunSpec(scenario, sc, m, k, tuple(overrides), root, v) for sc in scenes for v in variants
+             for m in methods for k in range(seeds)]
     from flightrecon.active.registry import check_method
 
     for s in specs:
