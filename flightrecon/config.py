@@ -135,7 +135,8 @@ class PlannerConfig:
     max_duration: float = option(15.0, 0.5, 300.0, doc="s; longer trajectories are rejected")
     use_ground_truth: bool = option(False, doc="plan on the true scene instead of the online occupancy map")
     library: str = option("default", doc="'default' (the paper's 198 candidates), 'no_stay' (197: without the current "
-                          "pose), 'gaussmi' (GauSS-MI's 94 actions, reaching 1.2 m) or a path to a TOML candidate list")
+                          "pose), 'moving' (180: no candidate at the current position), 'gaussmi' (GauSS-MI's 94 actions, "
+                          "reaching 1.2 m) or a path to a TOML candidate list")
     ompl_iterations: int = option(300, 1, 10_000_000, doc="RRT-Connect iterations per query (typical detours "
                               "need under 50); an iteration cap keeps seeded plans independent of machine load")
     ompl_time_limit: float = option(1.0, 0.001, 60.0, doc="s; safety cap per OMPL query")

@@ -91,6 +91,15 @@ def test_no_stay_library_is_the_default_without_the_current_pose():
     assert turns_in_place.sum() == 17  # the other 17 headings of the current position stay
 
 
+def test_moving_library_has_no_candidate_at_the_current_position():
+    lib = load_library("moving")
+    pos, yaw = lib.poses(np.array([1.0, -2.0, 1.2]), 0.7)
+    assert len(lib) == 198 - 18
+    step = np.linalg.norm(pos - [1.0, -2.0, 1.2], axis=1)
+    assert step.min() == pytest.approx(0.3)  # the nearest views are one GauSS-MI unit away
+    assert len(np.unique(np.round(np.c_[pos, yaw], 6), axis=0)) == 180
+
+
 def test_gaussmi_library_counts_and_reach_of_its_public_code():
     # active_manage.py init_view_lib: 5x3x3-3 basic, 4x3 high, 6x4 wide-turn and 4x2x2 aggressive samples (its comment says 8 of the last; it builds 16)
     lib = load_library("gaussmi")

@@ -9,8 +9,9 @@ backward, left and right; 0.4 m up and down; GauSS-MI's step units) times 18 hea
 over the full turn). Because offsets are taken in the turned frame, the candidates spread over rings
 of radius 0.3 m and 0.6 m around the drone at 36 bearings.
 
-Built-in alternatives, for ablations: `no_stay` is the default without the current pose itself (197;
-GauSS-MI's library never offers it), and `gaussmi` is GauSS-MI's own action library as its public
+Built-in alternatives, for ablations: `no_stay` is the default without the current pose itself (197),
+`moving` without any candidate at the current position (180: every view moves the drone; GauSS-MI's
+library never offers the current position, at any heading), and `gaussmi` is GauSS-MI's own action library as its public
 code builds it (active_manage.py `init_view_lib`: 94 sideways/vertical/turn actions in units of
 0.3 m, 0.4 m and 40 deg, reaching 1.2 m sideways and 1.2 m vertically; no forward step, no stay and
 no turn in place). A user library is a TOML file:
@@ -86,6 +87,12 @@ def no_stay_library() -> ViewpointLibrary:
     return ViewpointLibrary(offsets[np.any(offsets != 0.0, axis=1)], "no_stay")
 
 
+def moving_library() -> ViewpointLibrary:
+    """The default library without the 18 headings at the current position."""
+    offsets = default_library().offsets
+    return ViewpointLibrary(offsets[np.any(offsets[:, :3] != 0.0, axis=1)], "moving")
+
+
 def gaussmi_library() -> ViewpointLibrary:
     """GauSS-MI's 94 actions (sideways dy, vertical dz, turn dyaw) in its units, as (0, dy, dz, dyaw)."""
     actions = [(y, z, w) for y in (-2, -1, 0, 1, 2) for z in (-1, 0, 1) if (y, z) != (0, 0) for w in (-1, 0, 1)]
@@ -96,11 +103,12 @@ def gaussmi_library() -> ViewpointLibrary:
     return ViewpointLibrary(offsets, "gaussmi")
 
 
-BUILT_IN = {"default": default_library, "no_stay": no_stay_library, "gaussmi": gaussmi_library}
+BUILT_IN = {"default": default_library, "no_stay": no_stay_library, "moving": moving_library,
+            "gaussmi": gaussmi_library}
 
 
 def load_library(spec: str) -> ViewpointLibrary:
-    """A built-in library by name (default, no_stay, gaussmi) or the path of a TOML file of
+    """A built-in library by name (default, no_stay, moving, gaussmi) or the path of a TOML file of
     [[candidate]] tables (see the module docstring)."""
     if spec in BUILT_IN:
         return BUILT_IN[spec]()
