@@ -4,6 +4,7 @@ differences, brute-force FisherRF, edge cases and batching."""
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import pytest
 import torch
@@ -437,3 +438,50 @@ def test_backward_skips_only_groups_that_blend_nothing():
         loss.backward(retain_graph=True)
         grads.append([p.grad.clone() for p in ps])
     assert all(torch.equal(a, b) for a, b in zip(*grads))
+
+
+def test_a_view_of_more_splats_than_torchs_parallel_grain_renders_and_trains_alike_at_any_thread_count():
+    """33,003 splats: torch splits an elementwise op over more than 32,768 elements among its threads,
+    and at 2 threads torch.sigmoid rounds the scalar tail of the first share unlike at 1 (element
+    16,485 of these logits on an AVX-512 host, where this test fails with torch.sigmoid). The image and every gradient at 2 threads equal those at 1 bit for bit, with the splats around
+    that index in front of the rest; the opacities are sigmoid's to within an ulp of float64's, edge
+    logits included."""
+    from flightrecon.render.backend_cpu import opacity_cpu
+
+    g = torch.Generator().manual_seed(3)
+    n = 33_003
+    logits = torch.randn(n, generator=g) * 3  # drawn first: element 16,485 is one that rounds apart
+    means = torch.rand(n, 3, generator=g) * torch.tensor([2.0, 1.5, 1.0]) + torch.tensor([-1.0, -0.75, 1.5])
+    means[16_400:16_600, 2] = 1.0  # nothing hides them
+    quats = torch.randn(n, 4, generator=g)
+    log_scales = torch.log(torch.rand(n, 2, generator=g) * 0.02 + 0.005)
+    log_scales[16_400:16_600] = math.log(0.05)  # and they span pixels
+    logits[:6] = torch.tensor([0.0, -0.0, 88.0, -88.0, 1e-8, -200.0])
+    colors = torch.rand(n, 3, generator=g)
+    viewmat, K = torch.eye(4)[None], torch.tensor([[[40.0, 0, 32], [0, 40.0, 24], [0, 0, 1]]])
+    expected = torch.sigmoid(logits.double())
+    assert torch.allclose(opacity_cpu(logits).double(), expected, rtol=2 ** -23, atol=1e-45)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(1)
+        one = opacity_cpu(logits)
+        torch.set_num_threads(2)
+        assert torch.equal(opacity_cpu(logits), one)
+    finally:
+        torch.set_num_threads(before)
+
+    def run(threads: int):
+        torch.set_num_threads(threads)
+        leaves = [t.clone().requires_grad_(True) for t in (means, quats, log_scales, logits, colors)]
+        out = render(*leaves, viewmat, K, 64, 48, near=0.05, far=10.0, backend="cpu",
+                     outputs=("features", "alpha", "depth", "normal", "distortion"))
+        (out.features.square().sum() + out.depth.sum() + out.normal.sum() + out.distortion.sum()).backward()
+        return [out.features, out.alpha, out.depth, out.normal] + [t.grad for t in leaves]
+
+    before = torch.get_num_threads()
+    try:
+        one, two = run(1), run(2)
+    finally:
+        torch.set_num_threads(before)
+    for a, b in zip(one, two):
+        assert torch.equal(a, b)

@@ -21,6 +21,37 @@ def _prep(t: Tensor, dtype: torch.dtype) -> Tensor:
     return t.to(dtype).contiguous()
 
 
+CHUNK = 16384  # elements; below torch's parallel grain (32768), so one thread computes each chunk
+
+
+class OpacityCPU(torch.autograd.Function):
+    """sigmoid(logits) computed the same at any thread count.
+
+    torch splits an elementwise op over more than 32768 elements among its threads, and each share
+    runs its vector loop then a scalar tail whose sigmoid rounds differently: which splats get the
+    scalar formula then depends on the thread count, and flights at 1 and 2 threads drifted apart
+    once a view held more than 32768 splats. Fixed chunks below the grain put every element on the
+    same path at any thread count; the backward s (1 - s) g is chunked alike."""
+
+    @staticmethod
+    def forward(ctx, logits):
+        s = torch.cat([torch.sigmoid(c) for c in logits.split(CHUNK)]) if len(logits) else torch.sigmoid(logits)
+        ctx.save_for_backward(s)
+        return s
+
+    @staticmethod
+    def backward(ctx, grad):
+        s, = ctx.saved_tensors
+        if not len(s):
+            return grad
+        return torch.cat([g * ((1 - c) * c) for g, c in zip(grad.split(CHUNK), s.split(CHUNK))])
+
+
+def opacity_cpu(logits: Tensor) -> Tensor:
+    """Splat opacities from their logits, identical at any thread count (OpacityCPU)."""
+    return OpacityCPU.apply(logits)
+
+
 class SplatAxesCPU(torch.autograd.Function):
     """(quats [N,4] of any norm, log_scales [N,2]) -> world-frame U, V, n [N,3], in one C++ pass.
 
@@ -109,7 +140,7 @@ def render_cpu(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits:
     track = "median_depth" in outputs or (torch.is_grad_enabled() and any(
         t.requires_grad for t in (means, quats, log_scales, opacity_logits, features, viewmats, Ks)))
     feat, alpha, normal, zsum, msum, m2sum, median, _, _, radii = RasterizeCPU.apply(
-        means, U, V, n, torch.sigmoid(opacity_logits), feats, viewmats, Ks, width, height,
+        means, U, V, n, opacity_cpu(opacity_logits), feats, viewmats, Ks, width, height,
         float(near), float(far), want_normal, want_depth, want_dist, track)
     alpha = alpha[..., None]
     out = {"features": feat, "alpha": alpha, "radii": radii}

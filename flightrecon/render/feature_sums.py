@@ -76,12 +76,12 @@ def sided_feature_sums(means: Tensor, quats: Tensor, log_scales: Tensor, opacity
 
 def _sums_cpu(means, quats, log_scales, opacity_logits, sided, viewmats, Ks, width, height, near, far, w_min,
               weighted, floor) -> FeatureSums:
-    from flightrecon.render.backend_cpu import splat_axes_cpu
+    from flightrecon.render.backend_cpu import opacity_cpu, splat_axes_cpu
     from flightrecon.render.extension import load
 
     dt = means.dtype
     U, V, n = splat_axes_cpu(quats, log_scales)
-    args = [t.to(dt).contiguous() for t in (means, U, V, n, torch.sigmoid(opacity_logits), sided)]
+    args = [t.to(dt).contiguous() for t in (means, U, V, n, opacity_cpu(opacity_logits), sided)]
     sums, bound = load().feature_sums(*args, viewmats.double().contiguous(), Ks.double().contiguous(), width,
                                       height, float(near), float(far), float(w_min), bool(weighted), float(floor))
     return FeatureSums(sums, bound)
