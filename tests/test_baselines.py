@@ -188,8 +188,9 @@ def test_fisherrf_score_is_the_trace_over_all_collected_frames():
     assert all(e > 0 for e in expect)
 
 
-def test_activegs_confidence_follows_its_update():
-    cfg = _cfg("activegs")
+@pytest.mark.parametrize("explore_weight", [1000.0, 0.0])  # its code's weight; 0 leaves exploitation alone
+def test_activegs_confidence_follows_its_update(explore_weight):
+    cfg = _cfg("activegs", [f"activegs.explore_weight={explore_weight}"])
     m = _mapper(cfg)
     sel = ActiveGSSelector(cfg)
     views = [POSES[0], camera_pose(np.array([0.3, 0.5, 1.3]), -0.3)]
@@ -245,7 +246,7 @@ def test_activegs_confidence_follows_its_update():
             if 0 <= u < sel.width and 0 <= v < sel.height and depth_far[v, u] > c[2]:
                 seen += 1
         counts.append(seen)
-        assert util[j] == pytest.approx(1000 * seen / len(centers) + exploit, rel=1e-4, abs=1e-7)
+        assert util[j] == pytest.approx(explore_weight * seen / len(centers) + exploit, rel=1e-4, abs=1e-7)
     assert counts[0] == 0 < counts[1]  # the observed view left nothing unexplored in its own frustum
 
 

@@ -74,6 +74,8 @@ class ActiveGSConfig:
     extent: list = option([16.0, 16.0, 5.0], doc="voxel grid size around the first camera (m), only for a "
                           "selector driven without a scene; in a flight its grid spans the scene")
     path_weight: float = option(0.5, 0.0, 100.0, doc="path-length term weight")
+    explore_weight: float = option(1000.0, 0.0, 1e6, doc="weight of the exploration utility against the "
+                                   "exploitation one (ActiveGS's code: 1000)")
     moved_from = {"baselines.activegs_voxel": "voxel", "baselines.activegs_extent": "extent",
                   "baselines.activegs_path_weight": "path_weight"}
 
@@ -425,10 +427,16 @@ class ActiveGSSelector(_Scoring):
         S[seen] += (1 - (dist[seen] / EXPLORE_RANGE).clamp(0, 1)) * n_dot_v[seen].clamp(0, 1)
         return {"seen": int(seen.sum())}
 
-    @torch.no_grad()
     def utilities(self, view: MapView, poses: np.ndarray) -> np.ndarray:
-        """U = 1000 U_explore + U_exploit per candidate (before normalization and path term), from one
-        render per candidate at quarter resolution (its planning/confidence.py)."""
+        """U = w U_explore + U_exploit per candidate (before normalization and path term), w =
+        `activegs.explore_weight` (its code: 1000)."""
+        explore, exploit = self.explore_exploit(view, poses)
+        return self.cfg.activegs.explore_weight * explore + exploit
+
+    @torch.no_grad()
+    def explore_exploit(self, view: MapView, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(U_explore [C], U_exploit [C]) per candidate, from one render per candidate at quarter
+        resolution (its planning/confidence.py)."""
         K = self.K_score.numpy().astype(float)
         explore, exploit = np.zeros(len(poses)), np.zeros(len(poses))
         R = EXPLORE_RANGE
@@ -438,7 +446,7 @@ class ActiveGSSelector(_Scoring):
             C = torch.where(D > R, torch.ones_like(D), C)
             D_surface = torch.where(D < 0.001, torch.full_like(D, 0.5 * R), D)
             exploit[cams] = ((1 - C) * D_surface / R).mean(dim=(1, 2)).double().numpy()
-        return 1000.0 * explore + exploit
+        return explore, exploit
 
     def _renders(self, view: MapView, poses: np.ndarray):
         """(cameras, depth [c,H,W], confidence [c,H,W]) of the map at the candidates, on the CPU; an
