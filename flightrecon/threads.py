@@ -34,6 +34,10 @@ WAIT_VARIABLES = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")  # either one set by the 
 DEFAULT_SPIN = ("GOMP_SPINCOUNT", "10000")
 
 _reported_late = False
+# (limit, threads) of the last change a FreeCores made: a sweep worker flies one flight after another
+# in one process, and the next flight must start from the limit, not from the count a busy moment of
+# the previous one left (a count set since by anyone else is the user's, and kept)
+_lowered: tuple[int, int] | None = None
 
 
 def available_cores() -> int:
@@ -80,6 +84,8 @@ class FreeCores:
 
         self._torch = torch
         self.limit = torch.get_num_threads()
+        if _lowered is not None and self.limit == _lowered[1]:  # an earlier flight of this process lowered it
+            self.limit = _lowered[0]
         self._last = self._sample()
 
     @staticmethod
@@ -107,5 +113,7 @@ class FreeCores:
         self._last = now
         threads = int(min(self.limit, max(1, round(available_cores() - others))))
         if threads != self._torch.get_num_threads():
+            global _lowered
             self._torch.set_num_threads(threads)
+            _lowered = (self.limit, threads)
         return threads
