@@ -103,6 +103,7 @@ class FreeCores:
 
     def update(self) -> int:
         """Set and return the threads for the work until the next call."""
+        global _lowered
         now = self._sample()
         if now is None or self._last is None or self.limit <= 1:
             return self._torch.get_num_threads()
@@ -113,7 +114,6 @@ class FreeCores:
         self._last = now
         threads = int(min(self.limit, max(1, round(available_cores() - others))))
         if threads != self._torch.get_num_threads():
-            global _lowered
             self._torch.set_num_threads(threads)
             _lowered = (self.limit, threads)
         return threads

@@ -462,11 +462,15 @@ class ActiveGSSelector(_Scoring):
                                            backend=self.cfg.mapper.backend):
             yield cams, out.depth[..., 0].cpu(), out.features[..., 0].cpu()
 
-    def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
-        if lengths is None:  # the loop did not pass planned lengths: straight line from the last view
+    def path_lengths(self, poses: np.ndarray, lengths: np.ndarray | None) -> np.ndarray:
+        """The planned lengths [C], or where the loop passed none, the straight line from the last view."""
+        if lengths is None:
             ref = self.last_center if self.last_center is not None else np.zeros(3)
             lengths = np.linalg.norm(np.asarray(poses)[:, :3, 3] - ref, axis=-1)
-        return activegs_combine(self.utilities(view, poses), np.asarray(lengths, float),
+        return np.asarray(lengths, float)
+
+    def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
+        return activegs_combine(self.utilities(view, poses), self.path_lengths(poses, lengths),
                                 self.cfg.activegs.path_weight, self.rng)
 
     def get_state(self) -> dict:

@@ -38,7 +38,7 @@ class GaussMI2DFrontier(Selector):
 
     name = "gaussmi2d_frontier"
     section, settings = "frontier_mi", FrontierMIConfig
-    columns = {**ActiveGSSelector.columns, **GaussMI2D.columns}
+    columns = {**ActiveGSSelector.columns, **GaussMI2D.columns}  # ActiveGS's render reads its columns (zero here)
 
     def __init__(self, cfg: ScenarioConfig) -> None:
         super().__init__(cfg)
@@ -49,20 +49,18 @@ class GaussMI2DFrontier(Selector):
         self.space.attach_scene(bounds)
 
     def observe(self, view: MapView, obs: Observation) -> dict:
-        return {**self.space.observe(view, obs), **self.mi.observe(view, obs)}
+        self.space.observe_space(obs.depth, obs.K, obs.T_wc)  # its voxel map; ActiveGS's confidence is not used
+        return self.mi.observe(view, obs)
 
     def utilities(self, view: MapView, poses: np.ndarray) -> np.ndarray:
         """U = w U_explore + MI / max MI per candidate (before normalization and path term)."""
         explore, _ = self.space.explore_exploit(view, poses)
         mi = self.mi.mutual_information(view, poses).numpy() if len(view) else np.zeros(len(poses))
         top = mi.max(initial=0.0)
-        return self.cfg.frontier_mi.explore_weight * explore + (mi / top if top > 0 else mi * 0.0)
+        return self.cfg.frontier_mi.explore_weight * explore + (mi / top if top > 0 else np.zeros_like(mi))
 
     def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
-        if lengths is None:  # the loop did not pass planned lengths: straight line from the last view
-            ref = self.space.last_center if self.space.last_center is not None else np.zeros(3)
-            lengths = np.linalg.norm(np.asarray(poses)[:, :3, 3] - ref, axis=-1)
-        return activegs_combine(self.utilities(view, poses), np.asarray(lengths, float),
+        return activegs_combine(self.utilities(view, poses), self.space.path_lengths(poses, lengths),
                                 self.cfg.frontier_mi.path_weight, self.space.rng)
 
     def stopping_statistic(self, view: MapView) -> float:

@@ -30,9 +30,9 @@ log = logging.getLogger(__name__)
 
 ENTRY_POINT_GROUP = "flightrecon.selectors"
 ROLES = ("method", "baseline", "floor", "ablation")
-BUILT_IN: tuple[type[Selector], ...] = (GaussMI2D, GaussMI2DExplore, GaussMI2DFrontier, GaussMISelector, FisherRFSelector,
-                                        ActiveGSSelector, ActiveGSNative, RandomSelector, GaussMI2DNoWeight,
-                                        GaussMI2DOneSided, GaussMI2DColorOnly, GaussMI2DEdgeMask)
+BUILT_IN: tuple[type[Selector], ...] = (GaussMI2D, GaussMI2DExplore, GaussMI2DFrontier, GaussMISelector,
+                                        FisherRFSelector, ActiveGSSelector, ActiveGSNative, RandomSelector,
+                                        GaussMI2DNoWeight, GaussMI2DOneSided, GaussMI2DColorOnly, GaussMI2DEdgeMask)
 _SELECTORS: dict[str, type[Selector]] = {}
 _PLUGIN_ERRORS: dict[str, str] = {}  # entry point -> why it was left out
 _loaded = False  # built-ins and entry points registered
