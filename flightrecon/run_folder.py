@@ -25,6 +25,17 @@ NOVEL_VIEW = "novel_view.npz"  # the first evaluation view's ground truth and re
 OVER_FRAMES = "eval_over_frames.csv"  # the snapshots' metrics over collected frames
 
 
+def scene_folder(scene: str, scene_seed: int | None) -> str:
+    """The folder of a scene, or of one of its variants (scene.seed): each variant is a unit of its own."""
+    return scene if scene_seed is None else f"{scene}.v{scene_seed}"
+
+
+def base_scene(folder: str) -> str:
+    """The scene a scene folder (or a variant's, `<scene>.v<K>`) belongs to."""
+    head, sep, tail = folder.rpartition(".v")
+    return head if sep and tail.isdigit() else folder
+
+
 def snapshot_path(run_dir: str | Path, frame: int) -> Path:
     return Path(run_dir) / SNAPSHOTS / f"map_{frame:05d}.ply"
 

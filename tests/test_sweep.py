@@ -66,7 +66,8 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
     assert "| gaussmi2d |" in overall and "| random |" in overall
     paired = (report / "paired_gaussmi2d.md").read_text()  # one seed: a difference without an interval
     diff = recs[1]["psnr"] - recs[0]["psnr"] if recs[1]["method"] == "random" else recs[0]["psnr"] - recs[1]["psnr"]
-    assert f"| random | all | {diff:.2f} |" in paired and "| random | room0 |" in paired
+    assert f"| random | all | 1 | {diff:.2f} |" in paired and "| random | room0 | 1 |" in paired
+    assert "all, by scene" not in paired  # no variants: the scene folder is the scene
     summary = (report / "summary.md").read_text()
     assert "only the view-selection criterion differs" in summary and "- random: 1 finished run(s)" in summary
     assert "(ranking.md)" in summary
@@ -290,3 +291,25 @@ def test_ray_nodes_without_a_shared_file_system_send_each_runs_result_files_back
     assert len(recs) == 2 and all(r["psnr"] > 0 for r in recs)
     assert [w for _, w in execute(specs, executor="ray", transfer="always", log=lambda s: None)] == [
         "skipped (finished)"] * 2
+
+
+def test_paired_intervals_take_the_variant_or_the_scene_as_the_unit():
+    from scipy import stats
+
+    from flightrecon.experiments.report import ALL_SCENES, ALL_UNITS, paired_interval
+    from flightrecon.run_folder import base_scene
+
+    # method b minus a on three variants of two scenes: +1 and +3 on office0, -1 on room0
+    psnr_a = {"office0.v2": 20.0, "office0.v3": 21.0, "room0.v2": 25.0}
+    diff = {"office0.v2": 1.0, "office0.v3": 3.0, "room0.v2": -1.0}
+    recs = [{"method": "a", "scene": s, "seed": 0, "psnr": v} for s, v in psnr_a.items()]
+    recs += [{"method": "b", "scene": s, "seed": 0, "psnr": v + diff[s]} for s, v in psnr_a.items()]
+    by_variant = paired_interval(recs, "b", "a", "psnr", ALL_UNITS)
+    assert by_variant.n == 3 and by_variant.mean == pytest.approx(1.0)
+    assert by_variant.half_width == pytest.approx(stats.t.ppf(0.975, 2) * 2.0 / 3 ** 0.5)  # sd of 1, 3, -1 is 2
+    by_scene = paired_interval(recs, "b", "a", "psnr", ALL_SCENES)  # office0: 2, room0: -1
+    assert by_scene.n == 2 and by_scene.mean == pytest.approx(0.5)
+    assert by_scene.half_width == pytest.approx(12.706205 * 1.5, rel=1e-6)  # sd 2.1213 / sqrt 2 = 1.5
+    one = paired_interval(recs, "b", "a", "psnr", "office0.v3")
+    assert one.n == 1 and one.mean == pytest.approx(3.0)
+    assert [base_scene(s) for s in ("office0.v2", "room0", "my.vault", "a.v12")] == ["office0", "room0", "my.vault", "a"]

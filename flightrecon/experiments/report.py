@@ -251,10 +251,20 @@ def _by_run(recs: list[dict], method: str, key: str, scene: str | None = None) -
             if r["method"] == method and (scene is None or r["scene"] == scene)}
 
 
-def _paired_cell(recs: list[dict], method: str, ours: str, key: str, digits: int, scene: str | None = None) -> str:
-    """Over all scenes the unit is the scene (its seeds averaged); within one scene, the seed."""
-    iv = paired_difference(_by_run(recs, method, key, scene), _by_run(recs, ours, key, scene),
-                           unit=(lambda k: k[0]) if scene is None else None)
+ALL_UNITS = "all"  # over every scene folder: a variant (<scene>.v<K>) is a unit of its own
+ALL_SCENES = "all, by scene"  # variants of one scene averaged first: the scene is the unit
+
+
+def paired_interval(recs: list[dict], method: str, ours: str, key: str, row: str):
+    """Over all scene folders the unit is the folder (its seeds averaged); over scenes, the scene
+    (its variants and seeds averaged); within one scene folder, the seed."""
+    unit = {ALL_UNITS: lambda k: k[0], ALL_SCENES: lambda k: run_folder.base_scene(k[0])}.get(row)
+    scene = None if row in (ALL_UNITS, ALL_SCENES) else row
+    return paired_difference(_by_run(recs, method, key, scene), _by_run(recs, ours, key, scene), unit=unit)
+
+
+def _paired_cell(recs: list[dict], method: str, ours: str, key: str, digits: int, row: str) -> str:
+    iv = paired_interval(recs, method, ours, key, row)
     return iv.format(digits) + ("*" if iv.excludes_zero() else "")
 
 
@@ -273,17 +283,23 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
                          f"Overall evaluation results (mean over scenes ± 95% t-interval with the scene as the "
                          f"unit: each scene's seeds are averaged first; {note}; 'cov.': on pixels the map "
                          "covers, alpha >= 0.5)")
+    variants = any(run_folder.base_scene(s) != s for s in scenes)
+    summary_rows = [ALL_UNITS, ALL_SCENES] if variants else [ALL_UNITS]
     for ours in [m for m in methods if role_of(m) == "method"]:
         rows = []
         for m in [m for m in methods if m != ours]:
-            for scene in [None] + scenes:
-                rows.append([m, scene or "all"] + [_paired_cell(recs, m, ours, k.key, k.decimals, scene)
-                                                   for k in PAIRED])
+            for row in summary_rows + scenes:
+                units = paired_interval(recs, m, ours, PAIRED[0].key, row).n
+                rows.append([m, row, str(units)] + [_paired_cell(recs, m, ours, k.key, k.decimals, row)
+                                                    for k in PAIRED])
+        by_scene = (f"; '{ALL_SCENES}': the variants of each scene averaged first, 95% interval over scenes"
+                    if variants else "")
         paths += _write_table(out, f"paired_{ours}",
-                              ["Method", "Scene"] + [k.heading for k in PAIRED], rows,
+                              ["Method", "Scene", "Units"] + [k.heading for k in PAIRED], rows,
                               f"Paired difference to {ours} (method - {ours} on the same scenes and seeds; "
-                              "'all': mean over scenes of the seed-averaged difference, 95% interval over "
-                              f"scenes; per scene: over seeds; * excludes zero; {note})")
+                              f"'{ALL_UNITS}': mean over scene folders of the seed-averaged difference, 95% "
+                              f"interval over them{by_scene}; per scene folder: over seeds; 'Units': the "
+                              f"units behind the {PAIRED[0].heading} interval; * excludes zero; {note})")
     rows = []
     for m in methods:
         for k in PER_SCENE:

@@ -40,7 +40,7 @@ class RunSpec:
 
     @property
     def scene_folder(self) -> str:
-        return self.scene if self.scene_seed is None else f"{self.scene}.v{self.scene_seed}"
+        return run_folder.scene_folder(self.scene, self.scene_seed)
 
     @property
     def run_dir(self) -> Path:
