@@ -37,7 +37,7 @@ import numpy as np
 
 from flightrecon import provenance, run_folder
 from flightrecon.active.registry import proposes_own_candidates, role_of
-from flightrecon.evaluation.intervals import mean_interval, paired_difference
+from flightrecon.evaluation.intervals import Interval, mean_interval, paired_difference
 from flightrecon.fileio import atomic_path, write_text
 from flightrecon.metric_defs import METRICS, mean_defined, select
 
@@ -255,7 +255,7 @@ ALL_UNITS = "all"  # over every scene folder: a variant (<scene>.v<K>) is a unit
 ALL_SCENES = "all, by scene"  # variants of one scene averaged first: the scene is the unit
 
 
-def paired_interval(recs: list[dict], method: str, ours: str, key: str, row: str):
+def paired_interval(recs: list[dict], method: str, ours: str, key: str, row: str) -> Interval:
     """Over all scene folders the unit is the folder (its seeds averaged); over scenes, the scene
     (its variants and seeds averaged); within one scene folder, the seed."""
     unit = {ALL_UNITS: lambda k: k[0], ALL_SCENES: lambda k: run_folder.base_scene(k[0])}.get(row)
@@ -263,8 +263,7 @@ def paired_interval(recs: list[dict], method: str, ours: str, key: str, row: str
     return paired_difference(_by_run(recs, method, key, scene), _by_run(recs, ours, key, scene), unit=unit)
 
 
-def _paired_cell(recs: list[dict], method: str, ours: str, key: str, digits: int, row: str) -> str:
-    iv = paired_interval(recs, method, ours, key, row)
+def _paired_cell(iv: Interval, digits: int) -> str:
     return iv.format(digits) + ("*" if iv.excludes_zero() else "")
 
 
@@ -289,9 +288,8 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
         rows = []
         for m in [m for m in methods if m != ours]:
             for row in summary_rows + scenes:
-                units = paired_interval(recs, m, ours, PAIRED[0].key, row).n
-                rows.append([m, row, str(units)] + [_paired_cell(recs, m, ours, k.key, k.decimals, row)
-                                                    for k in PAIRED])
+                ivs = [paired_interval(recs, m, ours, k.key, row) for k in PAIRED]
+                rows.append([m, row, str(ivs[0].n)] + [_paired_cell(iv, k.decimals) for iv, k in zip(ivs, PAIRED)])
         by_scene = (f"; '{ALL_SCENES}': the variants of each scene averaged first, 95% interval over scenes"
                     if variants else "")
         paths += _write_table(out, f"paired_{ours}",
