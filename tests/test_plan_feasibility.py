@@ -170,6 +170,77 @@ def test_a_start_closer_than_required_can_still_leave(setup):
         assert d.min() >= d0 - planner.field.voxel_size / 2 - 1e-6
 
 
+def _at_clearance(field, clearance: float, origin: np.ndarray, direction) -> np.ndarray:
+    """The first point at `clearance` on the field, walking from `origin` along `direction` in 0.1 mm."""
+    pts = origin + np.outer(np.arange(0.0, 1.0, 1e-4), direction)
+    d = field.distance(pts)
+    k = int(np.argmax(d >= clearance))
+    assert d[k] >= clearance and d[k] < clearance + 1e-3
+    return pts[k]
+
+
+def _leaves_without_closing_in(r, field, start_pos: np.ndarray, required: float, mesh=None) -> None:
+    """Within a voxel of the start the trajectory keeps the start's clearance less half a voxel;
+    beyond it, the requirement; on the true mesh, it never touches."""
+    pos = r.trajectory.evaluate(np.linspace(0.0, r.duration, max(int(r.duration / 1e-3), 2)))[0][:, :3]
+    d = field.distance(pos)
+    d0 = field.distance(start_pos[None])[0]
+    assert d.min() >= d0 - field.voxel_size / 2 - 1e-6
+    far = np.linalg.norm(pos - start_pos, axis=1) >= field.voxel_size
+    assert d[far].min(initial=np.inf) >= required - 1e-6
+    if mesh is not None:
+        _, d_mesh, _ = trimesh.proximity.ProximityQuery(mesh).on_surface(pos[::4])
+        assert d_mesh.min() > required - field.voxel_size / 2 - field.accuracy
+
+
+def test_a_start_just_past_the_requirement_can_still_leave(setup):
+    """Hovering 2 mm beyond the required clearance (room1.v4 of the confirmatory sweep stood 0.351 m
+    from its map at 0.35 required): the start's own sample is short of the sampling margin, and the
+    search refused to root there, so every candidate failed and turning in place never left."""
+    mesh, cfg, planner = setup
+    required = cfg.drone.body_radius + cfg.planner.safety_margin
+    start_pos = _at_clearance(planner.field, required + 0.002, np.array([-3.0, 0.0, 1.2]), [1.0, 0, 0])
+    start = FlatState(start_pos, np.zeros(3), np.zeros(3), 0.0, 0.0)
+    ok = [r for r in planner.check_library(start) if r.feasible]
+    assert len(ok) > 50
+    for r in ok:
+        _leaves_without_closing_in(r, planner.field, start_pos, required)
+
+
+def test_a_detour_from_a_start_just_past_the_requirement(setup):
+    """The same band before the wall: the goal behind it needs a searched path, rooted where the
+    start has climbed the field to the search's clearance."""
+    mesh, cfg, planner = setup
+    required = cfg.drone.body_radius + cfg.planner.safety_margin
+    start_pos = _at_clearance(planner.field, required + 0.002, np.array([0.45, 0.0, 1.2]), [-1.0, 0, 0])
+    start = FlatState(start_pos, np.zeros(3), np.zeros(3), 0.0, 0.0)
+    goal = np.array([1.3, 0.2, 1.2])
+    (r,) = planner.check(start, goal[None], np.array([2.0]))
+    assert r.feasible and r.used_ompl, r.reason
+    end = r.trajectory.sample(r.duration)
+    np.testing.assert_allclose(end.position, goal, atol=1e-6)
+    np.testing.assert_allclose(end.velocity, 0.0, atol=1e-6)
+    _leaves_without_closing_in(r, planner.field, start_pos, required, mesh)
+
+
+def test_escape_point_climbs_straight_away_from_a_flat_wall(setup):
+    """Beside the room's flat wall the clearance grows along +x alone: the escape point moves along
+    +x only, to the first quarter-voxel step at or past the search's clearance."""
+    from flightrecon.planning.paths import escape_point, search_margin
+
+    _, cfg, planner = setup
+    field = planner.field
+    need = cfg.drone.body_radius + cfg.planner.safety_margin + search_margin(field)
+    start_pos = _at_clearance(field, need - 0.05, np.array([-3.0, 0.3, 1.2]), [1.0, 0, 0])
+    p = escape_point(field, start_pos, need, WORKSPACE)
+    assert p is not None
+    np.testing.assert_allclose(p[1:], start_pos[1:], atol=1e-3)
+    assert need <= field.distance(p[None])[0] < need + field.voxel_size / 4 + 1e-6
+    assert p[0] - start_pos[0] < 0.05 + field.voxel_size / 4 + 1e-6
+    np.testing.assert_array_equal(escape_point(field, np.array([0.0, -1.5, 1.2]), need, WORKSPACE),
+                                  [0.0, -1.5, 1.2])  # already clear: the start itself
+
+
 def test_planning_on_the_online_map_rejects_unknown_and_occupied_targets():
     from test_occupancy import _raycast_depth
 

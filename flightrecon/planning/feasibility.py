@@ -28,7 +28,7 @@ from flightrecon.control.trajectory import FlatState
 from flightrecon.planning.distance_field import DistanceField
 from flightrecon.planning.library import ViewpointLibrary, in_bounds, load_library
 from flightrecon.planning.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
-from flightrecon.planning.paths import ReachableSpace, plan_path, search_margin, seed_ompl
+from flightrecon.planning.paths import ReachableSpace, escape_point, plan_path, search_margin, seed_ompl
 from flightrecon.planning.timing import JerkTrajectory, Limits, evaluate_batch, time_path, unwrap_yaws
 
 REASONS = ("feasible", "out_of_bounds", "in_obstacle", "unknown_space", "clearance", "no_path",
@@ -91,8 +91,9 @@ def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settin
 
     Samples are spaced so no axis moves more than a quarter voxel between them; the clearance
     required at samples adds sqrt(3)/2 of the largest sample spacing (the field's Lipschitz bound).
-    A drone that starts closer than required (after a tracking error) may leave: near `start` the
-    requirement drops to its current clearance less half a voxel (it may not get closer)."""
+    A drone that starts closer than that (after a tracking error, or hovering just past the
+    requirement, where its own start sample would fail) may leave: near `start` the requirement
+    drops to its current clearance less half a voxel (it may not get closer)."""
     lim = settings.limits
     if not trajs:
         return [], np.zeros(0), np.zeros(0)
@@ -121,8 +122,8 @@ def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settin
     req = np.full(len(pos), settings.required_clearance)
     if start is not None:
         d0 = float(field.distance(np.asarray(start, float)[None])[0])
-        if d0 < settings.required_clearance:
-            radius = settings.required_clearance - d0 + field.voxel_size
+        if d0 < settings.required_clearance + search_margin(field):
+            radius = max(settings.required_clearance - d0, 0.0) + field.voxel_size
             near = np.linalg.norm(pos[:, :3] - start, axis=1) < radius
             req[near] = d0 - field.voxel_size / 2
     short = clear < req + math.sqrt(3) * max_step[who] / 2
@@ -212,26 +213,29 @@ def _straight_legs(start: FlatState, results: list[CandidateResult], todo: list[
 
 def _detours(start: FlatState, results: list[CandidateResult], retry: list[int], d_target: np.ndarray,
              field: DistanceField, workspace: np.ndarray, settings: PlanningSettings, times: PlanningTimes) -> None:
-    """An OMPL path around the obstacles to each candidate in `retry`, timed and checked."""
+    """An OMPL path around the obstacles to each candidate in `retry`, timed and checked. A start
+    too close for the search roots it at its escape point, reached by a first straight leg."""
     p0 = np.asarray(start.position, float)
     need = settings.required_clearance + search_margin(field)
-    start_ok = field.distance(p0[None])[0] >= need
+    root = escape_point(field, p0, need, workspace)
     reach: ReachableSpace | None = None  # built for the step's first search, reused by the others
     for i in retry:
         r = results[i]
-        if not start_ok or d_target[i] < need:
+        if root is None or d_target[i] < need:
             r.reason = "clearance"  # too tight at either end to search a detour
             continue
         reach = reach or ReachableSpace(field, need)
-        if not reach.may_connect(p0, r.position):
+        if not reach.may_connect(root, r.position):
             r.reason = "no_path"  # sealed off: no search could succeed
             continue
         times.n_ompl += 1
-        path = plan_path(field, p0, r.position, settings.required_clearance, workspace,
+        path = plan_path(field, root, r.position, settings.required_clearance, workspace,
                          settings.ompl_time_limit, settings.ompl_iterations)
         if path is None:
             r.reason = "no_path"
             continue
+        if not np.array_equal(root, p0):
+            path = np.vstack([p0, path])
         _time_detour(start, r, path, field, settings)
 
 

@@ -48,6 +48,31 @@ def search_margin(field: DistanceField) -> float:
     return (3.0 + math.sqrt(3)) / 8 * field.voxel_size
 
 
+def escape_point(field: DistanceField, start: np.ndarray, need: float, bounds: np.ndarray) -> np.ndarray | None:
+    """Where a search may root for a start closer to obstacles than `need`: the start moved up the
+    field's gradient in quarter-voxel steps until its clearance reaches `need` (a start in the band
+    between the trajectory requirement and the search's margin could otherwise never get a detour,
+    and turning in place never leaves that band). None when the clearance stops rising or the walk
+    exceeds 2 `need` (a pocket: no escape along the gradient)."""
+    step = field.voxel_size / 4
+    b = np.asarray(bounds, float)
+    p = np.asarray(start, float).copy()
+    d = float(field.distance(p[None])[0])
+    walked = 0.0
+    while d < need:
+        g = field.gradient(p[None])[0]
+        norm = float(np.linalg.norm(g))
+        if norm < 1e-6 or walked >= 2 * need:
+            return None
+        q = np.clip(p + step * g / norm, b[0], b[1])
+        dq = float(field.distance(q[None])[0])
+        if dq <= d:
+            return None
+        walked += float(np.linalg.norm(q - p))
+        p, d = q, dq
+    return p
+
+
 def plan_path(field: DistanceField, start: np.ndarray, goal: np.ndarray, required: float,
               bounds: np.ndarray, time_limit: float, max_iterations: int = 300) -> np.ndarray | None:
     """Collision-free, simplified waypoints (W, 3) from start to goal, or None if none was found.
