@@ -91,8 +91,8 @@ def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settin
 
     Samples are spaced so no axis moves more than a quarter voxel between them; the clearance
     required at samples adds sqrt(3)/2 of the largest sample spacing (the field's Lipschitz bound).
-    A drone that starts closer than that (after a tracking error, or hovering just past the
-    requirement, where its own start sample would fail) may leave: near `start` the requirement
+    A drone that starts below the search's clearance (after a tracking error, or hovering just past
+    the requirement, where its own start sample would fail) may leave: near `start` the requirement
     drops to its current clearance less half a voxel (it may not get closer)."""
     lim = settings.limits
     if not trajs:
