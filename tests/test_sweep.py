@@ -3,6 +3,13 @@ evaluation, every table and figure file; a second run skips the finished runs.""
 
 import csv
 import json
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -99,15 +106,31 @@ def test_a_failed_flight_is_recorded_reported_and_skipped_until_retried(tmp_path
     assert retried.startswith("failed: flight diverged")
 
 
+def _ray_of_this_test(tmp_path, monkeypatch) -> dict:
+    """Keeps this test's Ray apart from any other on the machine. In this process: no usage report
+    (no network), no RAY_ADDRESS, and the auth variables Ray sets while it runs restored afterwards.
+    Returned: the environment for `ray start` nodes and drivers in processes of their own, sharing a
+    token of this test's own (Ray's token authentication, as across real machines), so neither
+    ~/.ray/auth_token nor another cluster changes the outcome. (Ray reads the auth mode once per
+    process, so this process cannot switch to that token itself.)"""
+    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
+    for key in ("RAY_ADDRESS", "RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"):
+        monkeypatch.setenv(key, "")
+        monkeypatch.delenv(key)
+    token = tmp_path / "ray_token"
+    token.write_text(secrets.token_hex(32))
+    return dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN_PATH=str(token))
+
+
 @pytest.fixture
-def local_ray(monkeypatch):
-    """A local Ray instance on this machine only: 2 CPUs, no dashboard, no usage report (no network).
+def local_ray(tmp_path, monkeypatch):
+    """A local Ray instance of this test's own: 2 CPUs, no dashboard. address="local" starts a new
+    one even where another Ray cluster runs on this machine (a plain ray.init() would join that one).
     The dev extra installs ray, so a missing ray fails here rather than skipping the executor."""
     import ray
 
-    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
-    monkeypatch.delenv("RAY_ADDRESS", raising=False)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    _ray_of_this_test(tmp_path, monkeypatch)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield ray
     ray.shutdown()
 
@@ -222,60 +245,91 @@ def test_scene_variants_are_scenes_of_their_own_with_their_own_folders(tmp_path)
 
 
 def _free_port() -> int:
-    import socket
-
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _wait_for_port(address: str, node: subprocess.Popen, log: Path) -> None:
+    host, port = address.split(":")
+    deadline = time.monotonic() + 120
+    while True:
+        assert node.poll() is None, log.read_text()[-2000:]
+        assert time.monotonic() < deadline, f"the Ray head at {address} did not open within 120 s"
+        with socket.socket() as s:
+            if s.connect_ex((host, int(port))) == 0:
+                return
+        time.sleep(0.2)
+
+
+_WAIT_FOR_NODES = """import sys, time, ray
+ray.init(address=sys.argv[1], log_to_driver=False)
+deadline = time.monotonic() + 120
+while sum(n["Alive"] for n in ray.nodes()) < int(sys.argv[2]):
+    assert time.monotonic() < deadline, "the Ray nodes did not join within 120 s"
+    time.sleep(0.5)
+"""
 
 
 @pytest.fixture
 def two_ray_nodes(tmp_path, monkeypatch):
     """A Ray cluster of two nodes on this machine, one CPU each, each started by `ray start` in its own
     working folder with its own node-local run root ($FLIGHTRECON_NODE_RUNS): what two machines
-    without a shared file system look like to the sweep."""
-    import os
-    import subprocess
-    import sys
-
-    import ray
-
-    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
-    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    without a shared file system look like to the sweep. `--block` keeps each node's processes under
+    one `ray start` process, so stopping it stops this test's node alone (`ray stop` would stop every
+    Ray cluster on the machine). Yields the address, the driver's environment and the node folders."""
+    env = _ray_of_this_test(tmp_path, monkeypatch)
     ray_cli = str(Path(sys.executable).parent / "ray")
     address = f"127.0.0.1:{_free_port()}"
     folders = {name: tmp_path / f"node_{name}" for name in ("a", "b")}
-    started = []
+    nodes = []
     try:
         for name, folder in folders.items():
             folder.mkdir()
-            env = dict(os.environ, FLIGHTRECON_NODE_RUNS=str(folder / "runs"))
             head = ["--head", f"--port={address.split(':')[1]}", "--include-dashboard=false"]
-            args = head if not started else [f"--address={address}"]
-            subprocess.run([ray_cli, "start", *args, "--num-cpus=1", "--disable-usage-stats"], cwd=folder,
-                           env=env, check=True, capture_output=True, timeout=120)
-            started.append(name)
-        ray.init(address=address, log_to_driver=False)
-        yield folders
+            args = head if not nodes else [f"--address={address}"]
+            log = folder / "ray_start.log"
+            nodes.append(subprocess.Popen(
+                [ray_cli, "start", *args, "--num-cpus=1", "--disable-usage-stats", "--block"], cwd=folder,
+                env=dict(env, FLIGHTRECON_NODE_RUNS=str(folder / "runs")), start_new_session=True,
+                stdout=open(log, "w"), stderr=subprocess.STDOUT))
+            if len(nodes) == 1:
+                _wait_for_port(address, nodes[0], log)
+        subprocess.run([sys.executable, "-c", _WAIT_FOR_NODES, address, "2"], env=env, check=True, timeout=180)
+        yield address, env, folders
     finally:
-        ray.shutdown()
-        if started:
-            subprocess.run([ray_cli, "stop", "--force"], capture_output=True, timeout=120)
+        for node in reversed(nodes):
+            node.send_signal(signal.SIGTERM)
+        for node in nodes:
+            node.wait(timeout=120)
 
 
 @pytest.mark.slow
 def test_ray_nodes_without_a_shared_file_system_send_each_runs_result_files_back(tmp_path, two_ray_nodes):
+    """The driver is `flightrecon sweep --executor ray --ray-address` in a process of its own, as a
+    user runs it."""
     from flightrecon.experiments.ray_nodes import RESULT_FILES
 
+    address, env, folders = two_ray_nodes
     root = tmp_path / "driver_runs"
-    specs = plan_runs("demo", ["room0"], ["random"], 2, TINY + ["budget.frames=2"], str(root))
+    overrides = TINY + ["budget.frames=2"]
+    specs = plan_runs("demo", ["room0"], ["random"], 2, overrides, str(root))
     (specs[1].run_dir).mkdir(parents=True)
     (specs[1].run_dir / "failed.txt").write_text("an earlier try\n")  # stale: the new result replaces it
-    out = execute(specs, executor="ray", transfer="always", log=lambda s: None, retry_failed=True)
-    assert [d for d, _ in out] == [str(s.run_dir) for s in specs]
-    assert all("results copied back" in what for _, what in out)
+    sweep = [sys.executable, "-m", "flightrecon.cli", "sweep", "--scenario", "demo", "--scenes", "room0",
+             "--methods", "random", "--seeds", "2", "--executor", "ray", "--ray-address", address,
+             "--ray-transfer", "always", "--run-root", str(root), *[a for o in overrides for a in ("--set", o)]]
+
+    def fly(*extra) -> list[str]:
+        done = subprocess.run(sweep + list(extra), env=env, capture_output=True, text=True, timeout=900)
+        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-3000:]
+        return [line for line in done.stdout.splitlines() if line.startswith(str(root))]
+
+    lines = fly("--retry-failed")
+    assert sorted(line.split(": ")[0] for line in lines) == sorted(str(s.run_dir) for s in specs)
+    assert all("results copied back" in line for line in lines), lines
     flown = {}
-    for name, folder in two_ray_nodes.items():  # each node flew one run in its own folder
+    for name, folder in folders.items():  # each node flew one run in its own folder
         flown[name] = sorted(p.parent for p in (folder / "runs").rglob("map.ply"))
     assert sorted(len(v) for v in flown.values()) == [1, 1]
     for spec in specs:
@@ -289,8 +343,7 @@ def test_ray_nodes_without_a_shared_file_system_send_each_runs_result_files_back
         assert status(spec) == "done"
     recs = collect([s.run_dir for s in specs])  # the report reads the copied files alone
     assert len(recs) == 2 and all(r["psnr"] > 0 for r in recs)
-    assert [w for _, w in execute(specs, executor="ray", transfer="always", log=lambda s: None)] == [
-        "skipped (finished)"] * 2
+    assert [line.split(": ", 1)[1] for line in fly()] == ["skipped (finished)"] * 2
 
 
 def test_paired_intervals_take_the_variant_or_the_scene_as_the_unit():
