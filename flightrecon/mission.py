@@ -29,7 +29,7 @@ from typing import NoReturn
 
 import numpy as np
 
-from flightrecon import provenance, run_folder, threads
+from flightrecon import provenance, run_folder, run_lock, threads
 from flightrecon.active.diagnosis import move_kind
 from flightrecon.active.protocol import MapView, Observation, Selector
 from flightrecon.active.registry import make_selector
@@ -125,17 +125,19 @@ class Mission:
         return mission
 
     def run(self) -> dict:
-        """Fly until the frame budget (or the stopping rule); returns the final metrics (metrics.json)."""
-        bar = _progress(self.cfg.budget.frames, self.state.frame, self.progress)
-        while not self.done:
-            bar.update(self.step())
-            if self.stopping_rule_met:
-                self._event(f"frame {self.state.frame - 1}: stopping rule met (EMA of the reliable share "
-                            f"{self.state.reliable_ema:.3f} > {RELIABLE_STOP})")
-                self._save_frame_outputs()
-                break
-        bar.close()
-        return self.finish()
+        """Fly until the frame budget (or the stopping rule); returns the final metrics (metrics.json).
+        Raises RunInUse, before writing anything, while another process flies the same run folder."""
+        with run_lock.claim(self.run_dir):
+            bar = _progress(self.cfg.budget.frames, self.state.frame, self.progress)
+            while not self.done:
+                bar.update(self.step())
+                if self.stopping_rule_met:
+                    self._event(f"frame {self.state.frame - 1}: stopping rule met (EMA of the reliable share "
+                                f"{self.state.reliable_ema:.3f} > {RELIABLE_STOP})")
+                    self._save_frame_outputs()
+                    break
+            bar.close()
+            return self.finish()
 
     @property
     def done(self) -> bool:

@@ -23,6 +23,7 @@ MESH = "mesh.ply"  # the TSDF mesh of the final map
 DATASET = "dataset"  # output.dataset: the captured RGB-D frames and poses (transforms.json, flightrecon.dataset)
 NOVEL_VIEW = "novel_view.npz"  # the first evaluation view's ground truth and renders
 OVER_FRAMES = "eval_over_frames.csv"  # the snapshots' metrics over collected frames
+LOCK = "flying.lock"  # held while a process flies the run (flightrecon.run_lock)
 
 
 def scene_folder(scene: str, scene_seed: int | None) -> str:

@@ -7,6 +7,8 @@ map.ply but no eval.json is only evaluated; a run with a checkpoint continues wi
 `Mission.resume`. A flight that stops with an error (it diverged, or met bad data) leaves failed.txt
 with the reason beside its checkpoint: the sweep goes on with the other runs, reports it, and skips
 it on later calls unless told to retry (after the cause is fixed, it resumes from the checkpoint).
+A run another process flies (a second sweep over the same root) is skipped, not flown twice
+(`run_lock`).
 Executors: `local` (a process pool of `jobs` workers, inline when jobs = 1) or `ray` (the same task
 on a Ray cluster, local or `ray_address`; nodes without the driver's file system send the result
 files back: `experiments.ray_nodes`).
@@ -19,7 +21,7 @@ from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 
-from flightrecon import run_folder
+from flightrecon import run_folder, run_lock
 from flightrecon.config import load_config
 from flightrecon.errors import FlightReconError
 from flightrecon.experiments import ray_nodes
@@ -74,6 +76,8 @@ def status(spec: RunSpec) -> str:
     d = spec.run_dir
     if (d / run_folder.EVAL).is_file():
         return "done"
+    if run_lock.holder(d) is not None:
+        return "running"
     if (d / run_folder.FAILED).is_file():
         return "failed"
     if (d / run_folder.METRICS).is_file() and (d / run_folder.MAP).is_file():
@@ -81,6 +85,15 @@ def status(spec: RunSpec) -> str:
     if (d / run_folder.CHECKPOINT).is_file():
         return "resume"
     return "new"
+
+
+def _skipped(spec: RunSpec, state: str) -> str:
+    if state == "done":
+        return "skipped (finished)"
+    if state == "running":
+        claim = run_lock.holder(spec.run_dir)
+        return f"skipped (being flown by {run_lock.describe(claim) if claim else 'a process that just ended'})"
+    return f"skipped (failed earlier; --retry-failed flies it on): {failure(spec)}"
 
 
 def failure(spec: RunSpec) -> str | None:
@@ -101,6 +114,14 @@ def run_one(spec: RunSpec, threads: int = 0, allow_code_change: bool = False) ->
         import torch
 
         torch.set_num_threads(threads)
+    try:
+        with run_lock.claim(spec.run_dir):
+            return _fly_and_evaluate(spec, allow_code_change)
+    except run_lock.RunInUse as exc:  # another sweep took it since this one planned: its result, not ours
+        return str(spec.run_dir), f"skipped ({exc})"
+
+
+def _fly_and_evaluate(spec: RunSpec, allow_code_change: bool) -> tuple[str, str]:
     from flightrecon.experiments.run_eval import evaluate_run
     from flightrecon.mission import Mission
 
@@ -135,12 +156,10 @@ def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_ad
     if transfer not in ray_nodes.TRANSFER_MODES:
         raise FlightReconError(f"sweep: transfer must be one of {', '.join(ray_nodes.TRANSFER_MODES)}, "
                                f"got {transfer!r}")
-    skip = {"done"} if retry_failed else {"done", "failed"}
+    skip = {"done", "running"} if retry_failed else {"done", "running", "failed"}
     states = [status(s) for s in specs]
     todo = [s for s, state in zip(specs, states) if state not in skip]
-    done = [(str(s.run_dir), "skipped (finished)" if state == "done"
-             else f"skipped (failed earlier; --retry-failed flies it on): {failure(s)}")
-            for s, state in zip(specs, states) if state in skip]
+    done = [(str(s.run_dir), _skipped(s, state)) for s, state in zip(specs, states) if state in skip]
     for d, what in done:
         log(f"{d}: {what}")
     if max_runs is not None and len(todo) > max_runs:
