@@ -122,6 +122,51 @@ def _ray_of_this_test(tmp_path, monkeypatch) -> dict:
     return dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN_PATH=str(token))
 
 
+def _children(pid: int) -> list[int]:
+    return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+
+
+def _gone(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"  # exited, not reaped
+    except OSError:
+        return True
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads process children from Linux /proc")
+def test_the_pool_workers_of_a_killed_sweep_end_too_and_start_no_queued_run(tmp_path):
+    """SIGKILL reaches the sweep alone; its workers had runs queued to them and would fly them for
+    nobody. They end within seconds, and the runs they were flying resume later (stale claims)."""
+    from flightrecon import run_folder, run_lock
+
+    root = tmp_path / "runs"
+    sweep = subprocess.Popen(
+        [sys.executable, "-m", "flightrecon.cli", "sweep", "--scenario", "demo", "--scenes", "room0", "--methods",
+         "random", "--seeds", "6", "--jobs", "2", "--run-root", str(root),
+         *[a for o in TINY + ["budget.frames=40", "evaluation.every=0"] for a in ("--set", o)]],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 300
+        while len(list(root.rglob(run_folder.LOCK))) < 2:  # both workers are flying
+            assert sweep.poll() is None and time.monotonic() < deadline
+            time.sleep(0.5)
+        workers = [c for c in _children(sweep.pid)
+                   if "spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes().decode(errors="replace")]
+        assert len(workers) == 2
+    finally:
+        sweep.kill()
+        sweep.wait()
+    deadline = time.monotonic() + 30
+    while not all(_gone(w) for w in workers):
+        assert time.monotonic() < deadline, "the workers went on after their sweep was killed"
+        time.sleep(0.5)
+    started = sorted(root.glob("*/*/*/seed*"))
+    time.sleep(3)
+    assert sorted(root.glob("*/*/*/seed*")) == started and len(started) == 2
+    assert all(run_lock.holder(d) is None for d in started)  # stale: the next sweep takes them over
+
+
 @pytest.fixture
 def local_ray(tmp_path, monkeypatch):
     """A local Ray instance of this test's own: 2 CPUs, no dashboard. address="local" starts a new

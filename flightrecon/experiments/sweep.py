@@ -16,6 +16,9 @@ files back: `experiments.ray_nodes`).
 
 from __future__ import annotations
 
+import os
+import threading
+import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -177,11 +180,24 @@ def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_ad
             log(f"{out[-1][0]}: {out[-1][1]}")
         return done + out
     out = []
-    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn")) as pool:
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn"), initializer=_end_with_parent,
+                             initargs=(os.getpid(),)) as pool:
         for r in pool.map(run_one, todo, [threads] * len(todo), [allow_code_change] * len(todo)):
             out.append(r)
             log(f"{r[0]}: {r[1]}")
     return done + out
+
+
+def _end_with_parent(parent: int) -> None:
+    """Pool worker start: a worker whose sweep is gone (SIGKILL reaches the sweep alone and cannot be
+    passed on) ends too, instead of flying the runs already queued to it for nobody. The run it was
+    flying resumes from its last checkpoint on the next sweep (its claim is stale once this ends)."""
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="sweep-parent-watch", daemon=True).start()
 
 
 def _execute_ray(todo: list[RunSpec], threads: int, address: str | None, log,
