@@ -106,22 +106,6 @@ def test_a_failed_flight_is_recorded_reported_and_skipped_until_retried(tmp_path
     assert retried.startswith("failed: flight diverged")
 
 
-def _ray_of_this_test(tmp_path, monkeypatch) -> dict:
-    """Keeps this test's Ray apart from any other on the machine. In this process: no usage report
-    (no network), no RAY_ADDRESS, and the auth variables Ray sets while it runs restored afterwards.
-    Returned: the environment for `ray start` nodes and drivers in processes of their own, sharing a
-    token of this test's own (Ray's token authentication, as across real machines), so neither
-    ~/.ray/auth_token nor another cluster changes the outcome. (Ray reads the auth mode once per
-    process, so this process cannot switch to that token itself.)"""
-    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
-    for key in ("RAY_ADDRESS", "RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"):
-        monkeypatch.setenv(key, "")
-        monkeypatch.delenv(key)
-    token = tmp_path / "ray_token"
-    token.write_text(secrets.token_hex(32))
-    return dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN_PATH=str(token))
-
-
 def _children(pid: int) -> list[int]:
     return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
 
@@ -165,6 +149,22 @@ def test_the_pool_workers_of_a_killed_sweep_end_too_and_start_no_queued_run(tmp_
     time.sleep(3)
     assert sorted(root.glob("*/*/*/seed*")) == started and len(started) == 2
     assert all(run_lock.holder(d) is None for d in started)  # stale: the next sweep takes them over
+
+
+def _ray_of_this_test(tmp_path, monkeypatch) -> dict:
+    """Keeps this test's Ray apart from any other on the machine. In this process: no usage report
+    (no network), no RAY_ADDRESS, and the auth variables Ray sets while it runs restored afterwards.
+    Returned: the environment for `ray start` nodes and drivers in processes of their own, sharing a
+    token of this test's own (Ray's token authentication, as across real machines), so neither
+    ~/.ray/auth_token nor another cluster changes the outcome. (Ray reads the auth mode once per
+    process, so this process cannot switch to that token itself.)"""
+    monkeypatch.setenv("RAY_USAGE_STATS_ENABLED", "0")
+    for key in ("RAY_ADDRESS", "RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"):
+        monkeypatch.setenv(key, "")
+        monkeypatch.delenv(key)
+    token = tmp_path / "ray_token"
+    token.write_text(secrets.token_hex(32))
+    return dict(os.environ, RAY_AUTH_MODE="token", RAY_AUTH_TOKEN_PATH=str(token))
 
 
 @pytest.fixture
