@@ -8,7 +8,7 @@ import csv
 import os
 import subprocess
 import sys
-import time
+import threading
 from pathlib import Path
 
 import pytest
@@ -66,15 +66,38 @@ def test_kernels_and_demo_without_avx512(tmp_path):
     _fly_demo(tmp_path / "run", env)
 
 
-def test_a_killed_builds_lock_is_cleared_and_a_live_ones_kept(tmp_path):
-    # torch's cpp_extension waits forever on build/lock; a build killed midway leaves it behind
-    assert not extension.clear_stale_lock(tmp_path)
-    lock = tmp_path / "lock"
-    lock.touch()
-    assert not extension.clear_stale_lock(tmp_path) and lock.exists()  # a build may be running
-    old = time.time() - 2 * extension.STALE_LOCK_S
-    os.utime(lock, (old, old))
-    assert extension.clear_stale_lock(tmp_path) and not lock.exists()
+BUILD_AND_HANG = """
+import sys, time
+from pathlib import Path
+from flightrecon.render import extension
+build = Path(sys.argv[1])
+with extension.one_builder(build):
+    (build / "lock").touch()  # what torch's cpp_extension holds while it compiles
+    print("building", flush=True)
+    time.sleep(600)
+"""
+
+
+def test_a_build_killed_midway_never_blocks_the_next(tmp_path):
+    # torch's cpp_extension waits forever on build/lock, and a build killed midway leaves it behind
+    builder = subprocess.Popen([sys.executable, "-c", BUILD_AND_HANG, str(tmp_path)], cwd=ROOT,
+                               stdout=subprocess.PIPE, text=True)
+    try:
+        assert builder.stdout.readline().strip() == "building"
+        entered = threading.Event()
+
+        def build():
+            with extension.one_builder(tmp_path):
+                entered.set()
+
+        threading.Thread(target=build, daemon=True).start()
+        assert not entered.wait(1.0)  # a live build is waited for
+        assert (tmp_path / "lock").exists()
+    finally:
+        builder.kill()
+        builder.wait()
+    assert entered.wait(10.0)  # a killed one is not
+    assert not (tmp_path / "lock").exists()
 
 
 def test_the_cache_key_names_the_checkout(monkeypatch):

@@ -18,15 +18,17 @@ FlightReconError naming what is missing.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import logging
 import os
 import platform
 import shlex
 import shutil
-import time
+from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
+from typing import Iterator
 
 from flightrecon.errors import FlightReconError
 from flightrecon.resources import resource
@@ -103,22 +105,26 @@ def _check_toolchain() -> None:
         raise FlightReconError("cannot build the C++ rasterizer: ninja not found; pip install ninja")
 
 
-STALE_LOCK_S = 600.0  # a build takes 1-3 minutes on 2 cores
+BUILDER_LOCK = "builder.flock"
 
 
-def clear_stale_lock(build: Path, max_age_s: float = STALE_LOCK_S) -> bool:
-    """Remove torch's build lock if it is older than any build: a build killed midway leaves it, and
-    every later load would then wait for it forever, silently. True if one was removed."""
-    lock = build / "lock"
-    try:
-        age = time.time() - lock.stat().st_mtime
-    except FileNotFoundError:
-        return False
-    if age <= max_age_s:
-        return False
-    log.warning("removing the stale build lock %s (%.0f s old: a build was killed midway)", lock, age)
-    lock.unlink(missing_ok=True)
-    return True
+@contextmanager
+def one_builder(build: Path) -> Iterator[None]:
+    """Hold the build folder's flock while torch builds or loads in it. The kernel drops the flock when
+    its holder dies, so unlike torch's own `lock` file (which a build killed midway leaves behind, and
+    every later load then waits on forever, silently) it cannot outlive a killed build. Holding it, any
+    torch `lock` found is such a leftover and is removed."""
+    with open(build / BUILDER_LOCK, "a") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            log.info("waiting for another process that is building the C++ rasterizer in %s", build)
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        leftover = build / "lock"
+        if leftover.exists():
+            log.warning("removing %s: a build of the C++ rasterizer was killed midway", leftover)
+            leftover.unlink(missing_ok=True)
+        yield
 
 
 @lru_cache(maxsize=1)
@@ -131,10 +137,10 @@ def load(verbose: bool = False):
     _check_toolchain()
     build = cache_dir() / source_hash()
     build.mkdir(parents=True, exist_ok=True)
-    clear_stale_lock(build)
     try:
-        return cpp_extension.load(name="flightrecon_raster", sources=[str(s) for s in SOURCES],
-                                  extra_cflags=cflags(), extra_ldflags=["-fopenmp"],
-                                  build_directory=str(build), verbose=verbose)
+        with one_builder(build):
+            return cpp_extension.load(name="flightrecon_raster", sources=[str(s) for s in SOURCES],
+                                      extra_cflags=cflags(), extra_ldflags=["-fopenmp"],
+                                      build_directory=str(build), verbose=verbose)
     except (RuntimeError, OSError) as exc:
         raise FlightReconError(f"building the C++ rasterizer in {build} failed: {exc}") from exc
