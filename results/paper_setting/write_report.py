@@ -1,0 +1,22 @@
+"""Rewrite runs/office0/report from every finished paper-setting flight, with the code they were
+flown with (run from the 0553db2 worktree: `cd /tmp/paper-code && python <this file>`).
+
+Needed when flights were split between sweeps with different --methods (0553db2 has no per-run lock,
+so two sweeps over one root must not share a method): each such sweep writes a report of its own
+methods only. The sweep of the plan's full command writes the same report once all 12 are in."""
+
+from pathlib import Path
+
+from flightrecon.experiments.report import collect, write_figures, write_tables
+from flightrecon.experiments.sweep import failure, plan_runs
+
+ROOT = Path(__file__).resolve().parent / "runs"
+specs = plan_runs("paper/office0", ["office0", "office1", "room0", "room1"],
+                  ["gaussmi2d", "gaussmi2d_frontier", "activegs"], 1,
+                  ["planner.library=moving", "evaluation.every=50", "output.diagnose=true"], str(ROOT))
+report = specs[0].run_dir.parents[2] / "report"
+failed = {str(s.run_dir): why for s in specs if (why := failure(s)) is not None}
+recs = collect([s.run_dir for s in specs])
+files = write_tables(recs, report, failed) + write_figures(recs, report)
+print((report / "overall.md").read_text())
+print(f"{len(recs)} finished flights; {len(files)} files in {report}")
