@@ -210,9 +210,40 @@ def test_view_web_serves_the_recording_and_prints_the_address(tmp_path):
             pass
     finally:
         proc.terminate()
-        proc.wait(timeout=20)
+        try:  # a hang guard, not a timing: `view` stops its server within its 10 s grace, then kills it
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            left = subprocess.run(["ps", "-eo", "pid,pgid,stat,etime,args"], capture_output=True, text=True).stdout
+            proc.kill()
+            pytest.fail(f"`view --web` did not exit within 60 s of SIGTERM; processes:\n{left}")
     with pytest.raises(OSError):
         socket.create_connection(("127.0.0.1", web), timeout=2).close()
+
+
+def _state(pid: int) -> str:
+    """The process's state letter from /proc ('gone' once reaped): an oracle apart from `view`'s own check."""
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return "gone"
+
+
+@pytest.mark.parametrize("child_ignores_sigterm", [False, True])
+def test_stopping_the_viewer_ends_its_whole_process_group(child_ignores_sigterm):
+    """rerun's server is a wrapper and a binary under it; neither may outlive `view`, even one that
+    ignores SIGTERM (it is killed after the grace period)."""
+    from flightrecon.commands.view import stop_process_group
+
+    ignore = "signal.signal(signal.SIGTERM, signal.SIG_IGN); " if child_ignores_sigterm else ""
+    child = f"import os, signal, time; {ignore}print(os.getpid(), flush=True); time.sleep(600)"
+    wrapper = f"import subprocess, sys; subprocess.call([sys.executable, '-c', {child!r}])"
+    proc = subprocess.Popen([sys.executable, "-c", wrapper], start_new_session=True, stdout=subprocess.PIPE,
+                            text=True)
+    child_pid = int(proc.stdout.readline())
+    assert _state(child_pid) in "SR"
+    stop_process_group(proc, grace_s=1.0)
+    assert proc.returncode == -15  # the wrapper ends on SIGTERM either way
+    assert _state(child_pid) in ("gone", "Z")  # Z: dead, where PID 1 does not reap orphans
 
 
 def test_find_recordings_errors_are_user_errors(tmp_path):

@@ -24,6 +24,7 @@ from flightrecon.errors import FlightReconError
 
 RERUN = [sys.executable, "-m", "rerun"]  # the viewer that ships with the installed rerun-sdk
 START_TIMEOUT_S = 30.0
+STOP_GRACE_S = 10.0  # then the viewer's processes are killed
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -86,9 +87,44 @@ def _serve_web(files: list[str], host: str, web_port: int, grpc_port: int) -> in
         except KeyboardInterrupt:
             return 0
         finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGTERM)
-                proc.wait(timeout=10)
+            stop_process_group(proc)
+
+
+def stop_process_group(proc: subprocess.Popen, grace_s: float = STOP_GRACE_S) -> None:
+    """End every process in `proc`'s group (its own session): SIGTERM, then SIGKILL what is left after
+    `grace_s`. The group, not `proc`, is waited on: `python -m rerun` is a wrapper around the viewer
+    binary, the two do not end together, and neither may outlive `view`."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            break  # the group is gone
+        deadline = time.monotonic() + grace_s  # a killed process, too, dies only once scheduled
+        while _group_alive(proc.pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if not _group_alive(proc.pid):
+            break
+    proc.wait()
+
+
+def _group_alive(pgid: int) -> bool:
+    """Whether a process of the group still runs. Zombies do not count: where PID 1 does not reap
+    orphans (some containers), a dead viewer binary would otherwise answer forever."""
+    proc_dir = Path("/proc")
+    if not proc_dir.is_dir():  # no procfs: a zombie counts as alive, and the grace period bounds the wait
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            return False
+        return True
+    for stat in proc_dir.glob("[0-9]*/stat"):
+        try:
+            state, _ppid, group = stat.read_text().rsplit(")", 1)[1].split()[:3]
+        except (OSError, IndexError, ValueError):
+            continue  # the process ended while being read
+        if int(group) == pgid and state != "Z":
+            return True
+    return False
 
 
 def _wait_until_serving(proc: subprocess.Popen, host: str, port: int, logf) -> None:
