@@ -42,6 +42,14 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
         "demo/room0/gaussmi2d/seed0", "demo/room0/random/seed0"]
     first = execute(specs, log=lambda s: None, max_runs=1)  # one part of the sweep
     assert [what for _, what in first] == ["flown and evaluated"] and status(specs[1]) == "new"
+    only_report = subprocess.run(  # --max-runs 0: the report of what is finished, nothing flown
+        [sys.executable, "-m", "flightrecon.cli", "sweep", "--scenario", "demo", "--scenes", "room0", "--methods",
+         "gaussmi2d", "random", "--seeds", "1", "--run-root", str(tmp_path), "--max-runs", "0",
+         *[a for o in TINY for a in ("--set", o)]], capture_output=True, text=True, timeout=600)
+    assert only_report.returncode == 0, only_report.stderr
+    assert status(specs[1]) == "new" and not specs[1].run_dir.exists()
+    partial = (tmp_path / "demo" / "report" / "summary.md").read_text()
+    assert "- gaussmi2d: 1 finished run(s)" in partial and "- random: 1 finished" not in partial
     second = execute(specs, log=lambda s: None)  # the next part continues with the rest
     assert [what for _, what in second] == ["skipped (finished)", "flown and evaluated"]
     for s in specs:

@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--jobs", type=int, default=1, help="runs in parallel (default 1)")
     p.add_argument("--max-runs", type=int, default=None,
                    help="bring at most this many unfinished runs to an end, then report what is finished "
-                        "(a part of a sweep; run again to continue)")
+                        "(a part of a sweep; run again to continue; 0: fly nothing, only rewrite the report)")
     p.add_argument("--retry-failed", action="store_true",
                    help="fly runs whose flight failed earlier on from their checkpoint (after fixing the cause)")
     p.add_argument("--allow-code-change", action="store_true",
@@ -53,8 +53,8 @@ def run(args: argparse.Namespace) -> int:
     from flightrecon.experiments.report import collect, write_figures, write_tables
     from flightrecon.experiments.sweep import execute, failure, plan_runs
 
-    if args.seeds < 1 or args.jobs < 1 or (args.max_runs is not None and args.max_runs < 1):
-        raise FlightReconError("sweep: --seeds, --jobs and --max-runs must be at least 1")
+    if args.seeds < 1 or args.jobs < 1 or (args.max_runs is not None and args.max_runs < 0):
+        raise FlightReconError("sweep: --seeds and --jobs must be at least 1, and --max-runs at least 0")
     if args.methods is None:
         from flightrecon.active.registry import methods_with_role
 
