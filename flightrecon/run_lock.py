@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from flightrecon import run_folder
+from flightrecon import procfs, run_folder
 from flightrecon.errors import FlightReconError
 
 _held: set[Path] = set()  # folders this process holds
@@ -31,11 +31,8 @@ class RunInUse(FlightReconError):
 
 def _start_ticks(pid: int) -> int | None:
     """The process's start time in clock ticks since boot (Linux /proc), or None where unknown."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    return int(stat.rsplit(")", 1)[1].split()[19])  # field 22; the name in parentheses may hold spaces
+    fields = procfs.stat_fields(pid)
+    return None if fields is None else int(fields[19])
 
 
 def _me() -> dict:
@@ -49,6 +46,8 @@ def _alive_here(pid: int, start: int | None) -> bool:
         return False
     except PermissionError:  # someone else's process: it exists
         pass
+    if procfs.is_zombie(pid):  # killed but not reaped: it flies nothing
+        return False
     return start is None or _start_ticks(pid) in (None, start)
 
 

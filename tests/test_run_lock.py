@@ -7,6 +7,7 @@ import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -68,6 +69,19 @@ def test_the_claim_of_a_killed_process_is_stale_and_taken_over(tmp_path, other_p
     with run_lock.claim(tmp_path / "run"):
         assert json.loads(lock.read_text())["pid"] == os.getpid()
     assert not lock.exists()
+
+
+def test_the_claim_of_a_killed_but_unreaped_process_is_stale(tmp_path, other_process):
+    """A zombie still answers kill(pid, 0); where PID 1 does not reap orphans it stays one for good."""
+    proc = other_process(tmp_path / "run")
+    proc.send_signal(signal.SIGKILL)  # not waited on: a zombie until the fixture reaps it
+    deadline = time.monotonic() + 60
+    while Path(f"/proc/{proc.pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
+        assert time.monotonic() < deadline, "the killed holder never became a zombie"
+        time.sleep(0.01)
+    assert run_lock.holder(tmp_path / "run") is None
+    with run_lock.claim(tmp_path / "run"):
+        assert json.loads((tmp_path / "run" / run_folder.LOCK).read_text())["pid"] == os.getpid()
 
 
 @pytest.mark.parametrize("claim, stale", [

@@ -20,6 +20,7 @@ import urllib.error
 import urllib.request
 from pathlib import Path
 
+from flightrecon import procfs
 from flightrecon.errors import FlightReconError
 
 RERUN = [sys.executable, "-m", "rerun"]  # the viewer that ships with the installed rerun-sdk
@@ -108,23 +109,14 @@ def stop_process_group(proc: subprocess.Popen, grace_s: float = STOP_GRACE_S) ->
 
 
 def _group_alive(pgid: int) -> bool:
-    """Whether a process of the group still runs. Zombies do not count: where PID 1 does not reap
-    orphans (some containers), a dead viewer binary would otherwise answer forever."""
-    proc_dir = Path("/proc")
-    if not proc_dir.is_dir():  # no procfs: a zombie counts as alive, and the grace period bounds the wait
-        try:
-            os.killpg(pgid, 0)
-        except ProcessLookupError:
-            return False
-        return True
-    for stat in proc_dir.glob("[0-9]*/stat"):
-        try:
-            state, _ppid, group = stat.read_text().rsplit(")", 1)[1].split()[:3]
-        except (OSError, IndexError, ValueError):
-            continue  # the process ended while being read
-        if int(group) == pgid and state != "Z":
-            return True
-    return False
+    """Whether a process of the group still runs; zombies do not count (procfs.is_zombie)."""
+    if Path("/proc").is_dir():
+        return bool(procfs.group_members(pgid))
+    try:  # no procfs: a zombie counts as alive, and the grace period bounds the wait
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
 
 
 def _wait_until_serving(proc: subprocess.Popen, host: str, port: int, logf) -> None:
