@@ -109,7 +109,7 @@ def stop_process_group(proc: subprocess.Popen, grace_s: float = STOP_GRACE_S) ->
 
 
 def _group_alive(pgid: int) -> bool:
-    """Whether a process of the group still runs; zombies do not count (procfs.is_zombie)."""
+    """Whether a process of the group still runs; zombies do not count (procfs.group_members)."""
     if Path("/proc").is_dir():
         return bool(procfs.group_members(pgid))
     try:  # no procfs: a zombie counts as alive, and the grace period bounds the wait
