@@ -155,6 +155,18 @@ class MapperConfig:
                                "once its loss has fallen to this share of its first iteration's; 0: always K_new "
                                "(the paper)")
     k_new_min: int = option(20, 0, 10000, doc="iterations on a new frame before k_new_stop may end them")
+    seed_where: str = option("everywhere", choices=("everywhere", "unexplained"),
+                             doc="which pixels of a new frame may seed splats: everywhere (the paper: every "
+                                 "usable pixel, then gamma rejection), or unexplained: only where the map "
+                                 "rendered from the frame's pose is not yet opaque (alpha < 0.95), or its depth "
+                                 "or color is off by more than seed_depth_tol or seed_color_tol")
+    seed_depth_tol: float = option(0.02, 0.0, 1.0, doc="with seed_where = unexplained: a rendered depth within this "
+                                   "share of the observed one explains the pixel's geometry")
+    seed_color_tol: float = option(0.1, 0.0, 1.0, doc="with seed_where = unexplained: a rendered color within this "
+                                   "mean absolute difference (of 1) explains the pixel's color")
+    replay_window: float = option(1.0, 0.1, 1.0, doc="each replay iteration trains on a window of this share of the "
+                                  "frame's width and height, placed at random (seeded) over the frame (0.5: a quarter "
+                                  "of the pixels); 1: the whole frame (the paper)")
     lambda_depth: float = option(5.0, 0.0, 1e3)
     lambda_distortion: float = option(1.0, 0.0, 1e3)
     lambda_normal: float = option(0.05, 0.0, 1e3)

@@ -10,6 +10,7 @@ import torch
 
 from flightrecon.config import MapperConfig, load_config
 from flightrecon.geometry import camera_pose
+from flightrecon.mapping.frames import Window, window_intrinsics
 from flightrecon.mapping.image_metrics import depth_l1
 from flightrecon.mapping.mapper import TRAIN_OUTPUTS, OnlineMapper, seed_share
 from flightrecon.mapping.voxel_hash import voxel_keys
@@ -248,3 +249,80 @@ def test_k_new_stop_ends_a_new_frames_iterations_once_its_loss_has_fallen_enough
     expected = next(i for i, v in enumerate(losses) if i + 1 >= 5 and v <= share * losses[0]) + 1
     assert 5 <= expected <= 13
     assert iterations(k_new_stop=share, k_new_min=5) == expected
+
+
+@pytest.mark.parametrize("window", [Window(0, 0, 48, 36), Window(59, 37, 37, 35), Window(13, 7, 1, 1),
+                                    Window(0, 0, W, H)])
+def test_a_window_renders_as_the_same_crop_of_the_whole_frames_render(views, window):
+    """The camera of a window (window_intrinsics) draws exactly its pixels of the whole frame's image:
+    corners, odd sizes off the 16-pixel tiles, one pixel and the whole frame."""
+    K, vs = views
+    mapper = _mapper(k_new=5, k_replay=0)
+    mapper.add_frame(*vs[0][:2], K, vs[0][2])
+    whole = mapper.render_view(vs[1][2], K, W, H)
+    part = mapper.render_view(vs[1][2], window_intrinsics(torch.as_tensor(K, dtype=torch.float32), window).numpy(),
+                              window.width, window.height)
+    for name in ("features", "alpha", "depth"):
+        crop = getattr(whole, name)[0, window.rows, window.cols]
+        assert torch.allclose(getattr(part, name)[0], crop, atol=2e-5), name
+
+
+def test_replay_windows_have_the_configured_size_and_reach_every_corner_of_the_frame(views):
+    K, vs = views
+    mapper = _mapper(replay_window=0.5)
+    mapper.add_frame(*vs[0][:2], K, vs[0][2])
+    windows = [mapper._replay_window(mapper.frames[0]) for _ in range(3000)]
+    assert {(w.width, w.height) for w in windows} == {(48, 36)}
+    x0, y0 = np.array([w.x0 for w in windows]), np.array([w.y0 for w in windows])
+    assert x0.min() == 0 and x0.max() == W - 48 and y0.min() == 0 and y0.max() == H - 36
+    assert _mapper(replay_window=1.0)._replay_window(mapper.frames[0]) is None  # the paper: the whole frame
+    tiny = _mapper(replay_window=0.1)._replay_window(mapper.frames[0])
+    assert (tiny.width, tiny.height) == (10, 7)
+
+
+def test_a_replay_window_updates_only_the_splats_that_reach_it(views):
+    K, vs = views
+    mapper = _mapper(k_new=5, k_replay=0)
+    mapper.add_frame(*vs[0][:2], K, vs[0][2])
+    before = {name: mapper.map[name].clone() for name in ("means", "colors", "adam_step")}
+    window = Window(0, 0, 30, 24)  # the top-left corner
+    frame = mapper.frames[0]
+    Kw = window_intrinsics(frame.K, window)
+    reach = mapper.render_view(frame.T_wc, Kw.numpy(), window.width, window.height).radii[0] > 0
+    mapper._optimize(frame, 1, window=window)
+    stepped = mapper.map["adam_step"] > before["adam_step"]
+    assert 0 < int(stepped.sum()) < len(mapper.map) // 2
+    assert torch.equal(stepped, reach)
+    for name in ("means", "colors"):
+        assert torch.equal(mapper.map[name][~reach], before[name][~reach]), name
+
+
+def _in_view(points: np.ndarray, T_wc: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Points in front of the camera that project inside its W x H image."""
+    p = (points - T_wc[:3, 3]) @ T_wc[:3, :3]
+    z = np.maximum(p[:, 2], 1e-9)
+    u, v = K[0, 0] * p[:, 0] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]
+    return (p[:, 2] > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+
+
+def test_seeding_where_unexplained_leaves_the_surface_a_fitted_frame_already_renders(views):
+    """A view turned 45 degrees from a fitted one shares half its field. Where the fitted view did not
+    look, both rules seed alike (every pixel there is unexplained); in the shared half, seeding where
+    unexplained adds at most half of what seeding everywhere adds (the voxels between the first view's
+    splats), and only where that map still has gaps or errors."""
+    K, vs = views
+    scene = make_scene("office0", 0)
+    cam = RGBDCamera(build_world(scene, load_config(None), with_drone=False), W, H, 90.0, 0.05, 10.0)
+    first = camera_pose([0.0, 0.0, 1.2], 0.5, 10.0)
+    turned = camera_pose([0.0, 0.0, 1.2], 0.5 + np.pi / 4, 10.0)
+    added = {}
+    for where in ("everywhere", "unexplained"):
+        mapper = _mapper(k_new=60, k_replay=0, seed_where=where)
+        mapper.add_frame(*cam.render(first), K, first)
+        n0 = len(mapper.map)
+        mapper.add_frame(*cam.render(turned), K, turned)
+        added[where] = mapper.map["means"][n0:].numpy().astype(np.float64)
+    shared = {where: _in_view(points, first, K) for where, points in added.items()}
+    outside = {where: int((~inside).sum()) for where, inside in shared.items()}
+    assert abs(outside["unexplained"] - outside["everywhere"]) < 0.15 * outside["everywhere"]
+    assert 0 < shared["unexplained"].sum() <= 0.5 * shared["everywhere"].sum()

@@ -23,6 +23,32 @@ class StoredFrame:
     T_wc: np.ndarray  # (4, 4) float64 camera-to-world
 
 
+@dataclass(frozen=True)
+class Window:
+    """A pixel rectangle of a frame: columns x0 .. x0 + width - 1, rows y0 .. y0 + height - 1."""
+
+    x0: int
+    y0: int
+    width: int
+    height: int
+
+    @property
+    def rows(self) -> slice:
+        return slice(self.y0, self.y0 + self.height)
+
+    @property
+    def cols(self) -> slice:
+        return slice(self.x0, self.x0 + self.width)
+
+
+def window_intrinsics(K: torch.Tensor, window: Window) -> torch.Tensor:
+    """The intrinsics of the camera that sees just `window`: the principal point moves by its corner."""
+    Kw = K.clone()
+    Kw[0, 2] -= window.x0
+    Kw[1, 2] -= window.y0
+    return Kw
+
+
 def compact_frame(rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
                   valid: np.ndarray) -> StoredFrame:
     """Quantize a frame; depth outside `valid` is stored as 0."""

@@ -92,10 +92,13 @@ def depth_normals(depth: np.ndarray, K: np.ndarray, valid: np.ndarray,
 
 def frame_candidates(rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, *, near: float,
                      far: float, subsample: float, rng: np.random.Generator,
-                     edges: bool = True) -> dict[str, np.ndarray]:
-    """World points, normals and colors of a random `subsample` share of the usable pixels."""
+                     edges: bool = True, eligible: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """World points, normals and colors of a random `subsample` share of the usable pixels (of those
+    in the `eligible` mask [H, W], when given)."""
     valid = valid_depth_mask(depth, near, far)
     normals_c, ok = depth_normals(depth, K, valid, edges)
+    if eligible is not None:
+        ok &= eligible
     vs, us = np.nonzero(ok)
     count = int(round(subsample * vs.size))
     pick = np.sort(rng.choice(vs.size, size=count, replace=False)) if count < vs.size else np.arange(vs.size)

@@ -5,7 +5,9 @@ from the frame, K_new Adam iterations on it, then K_replay iterations each on a 
 (seeded) from the earlier ones, uniformly or favouring those trained longest ago
 (`MapperConfig.replay`). With `k_new_stop` > 0 (not the paper's setting) the K_new iterations end
 once the frame's loss has fallen to that share of its first value (after `k_new_min`): a view the
-map already explains needs few.
+map already explains needs few. With `replay_window` < 1 (not the paper's setting) each replay
+iteration trains on a window of the replayed frame, drawn at random: the frame keeps its full
+resolution while an iteration pays for a share of its pixels.
 
 Pruning (`prune_opacity` > 0) drops the splats whose opacity fell below it after the update,
 every column with them (GaussianMap.keep: optimizer moments, reliability, the selectors'
@@ -28,8 +30,8 @@ from flightrecon.config import MapperConfig
 from flightrecon.errors import FlightReconError
 from flightrecon.geometry import pixel_rays
 from flightrecon.mapping import init as splat_init
-from flightrecon.mapping.frames import StoredFrame, compact_frame, expand_frame
-from flightrecon.mapping.losses import FrameTarget, frame_target, training_loss
+from flightrecon.mapping.frames import StoredFrame, Window, compact_frame, expand_frame, window_intrinsics
+from flightrecon.mapping.losses import ALPHA_MASK, FrameTarget, frame_target, training_loss
 from flightrecon.mapping.optimizer import SparseAdam
 from flightrecon.mapping.store import PARAM_SHAPES, GaussianMap
 from flightrecon.mapping.voxel_hash import reject_near, voxel_keys
@@ -133,7 +135,7 @@ class OnlineMapper:
             pick = self._replay_pick(index)
             self._clock += 1
             self.last_trained[pick] = self._clock
-            self._optimize(self.frames[pick], 1)
+            self._optimize(self.frames[pick], 1, window=self._replay_window(self.frames[pick]))
 
     def _prune(self) -> None:
         """Drop the splats below `prune_opacity` (all columns) and keep their voxels taken; off at 0."""
@@ -162,11 +164,22 @@ class OnlineMapper:
         weight = 1.0 + self._clock - np.asarray(self.last_trained[:index], np.float64)
         return int(self.rng.choice(index, p=weight / weight.sum()))
 
+    def _replay_window(self, frame: StoredFrame) -> Window | None:
+        """A window of `replay_window` of the frame's width and height at a random place; None: all of it."""
+        share = self.cfg.replay_window
+        if share >= 1.0:
+            return None
+        H, W = frame.rgb.shape[:2]
+        w, h = max(1, round(W * share)), max(1, round(H * share))
+        return Window(int(self.rng.integers(W - w + 1)), int(self.rng.integers(H - h + 1)), w, h)
+
     def _insert(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, index: int) -> int:
         share = seed_share(self.cfg, depth.shape[1], depth.shape[0])
+        eligible = self._unexplained(rgb, depth, K, T_wc) if index > 0 and self.cfg.seed_where == "unexplained" \
+            else None
         cand = splat_init.frame_candidates(rgb, depth, K, T_wc, near=self.near, far=self.far,
                                            subsample=share, rng=self.rng,
-                                           edges=self.cfg.init_edge_normals)
+                                           edges=self.cfg.init_edge_normals, eligible=eligible)
         if index > 0:  # the first frame is inserted whole (2DGS-SLAM)
             keep = reject_near(cand["points"], self.map["means"].cpu().numpy(), self.cfg.gamma,
                                self.cfg.one_new_per_voxel, blocked=self.tombstones)
@@ -179,10 +192,24 @@ class OnlineMapper:
         self.map.append(frame=index, **{k: torch.from_numpy(v) for k, v in params.items()})
         return len(cand["points"])
 
+    def _unexplained(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> np.ndarray:
+        """Pixels [H, W] the map rendered from the new frame's pose does not explain yet: not opaque, or
+        depth or color off by more than the config's tolerances. Only these seed (seed_where)."""
+        out = self.render_view(T_wc, K, depth.shape[1], depth.shape[0])
+        alpha = out.alpha[0, ..., 0].cpu().numpy()
+        rendered_depth = out.depth[0, ..., 0].cpu().numpy()
+        color_error = np.abs(out.features[0].cpu().numpy() - np.asarray(rgb, np.float32)[..., :3]).mean(-1)
+        with np.errstate(invalid="ignore"):
+            explained = ((alpha >= ALPHA_MASK)
+                         & (np.abs(rendered_depth - depth) <= self.cfg.seed_depth_tol * depth)
+                         & (color_error <= self.cfg.seed_color_tol))
+        return ~explained
+
     def _optimize(self, frame: StoredFrame, iters: int, count_observed: bool = False, stop_share: float = 0.0,
-                  min_iters: int = 0) -> None:
-        """`iters` Adam iterations on one frame, on the splats that may reach its image; with
-        `stop_share` > 0, fewer once (after `min_iters`) the loss is at most that share of the first.
+                  min_iters: int = 0, window: Window | None = None) -> None:
+        """`iters` Adam iterations on one frame (or on its `window`), on the splats that may reach that
+        image; with `stop_share` > 0, fewer once (after `min_iters`) the loss is at most that share of
+        the first.
 
         Only splats the camera can see get gradient and updates, and the rest stay fixed during the
         call, so one conservative culling test at the start (_view_rows) picks every splat that could
@@ -196,10 +223,10 @@ class OnlineMapper:
         if iters <= 0 or len(self.map) == 0:
             return
         with profiling.stage("view setup"):
-            target = self._target(frame)
+            target = self._target(frame, window)
             H, W = target.depth.shape[:2]
             viewmat = frame.viewmat.to(self.device)[None]
-            Ks = frame.K.to(self.device)[None]
+            Ks = (frame.K if window is None else window_intrinsics(frame.K, window)).to(self.device)[None]
             rows = self._view_rows(viewmat[0], Ks[0], W, H)
             if len(rows) == 0:
                 return
@@ -301,9 +328,11 @@ class OnlineMapper:
         return training_loss(out, target, ssim_weight=c.ssim_weight, lambda_depth=c.lambda_depth,
                              lambda_normal=c.lambda_normal, lambda_distortion=c.lambda_distortion)
 
-    def _target(self, frame: StoredFrame) -> FrameTarget:
+    def _target(self, frame: StoredFrame, window: Window | None = None) -> FrameTarget:
         rgb, depth = expand_frame(frame, self.device)
         rays = self._rays_for(depth.shape[1], depth.shape[0], frame.K)
+        if window is not None:
+            rgb, depth, rays = (image[window.rows, window.cols] for image in (rgb, depth, rays))
         return frame_target(rgb, depth, rays, with_ssim=self.cfg.ssim_weight > 0)
 
     def _rays_for(self, W: int, H: int, K: torch.Tensor) -> torch.Tensor:
