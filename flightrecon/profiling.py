@@ -40,6 +40,13 @@ class StageProfile:
         for key, value in stats.items():
             self.kernel[f"{direction}.{key}"] += float(value)
 
+    def merge(self, other: "StageProfile") -> None:
+        """Add everything `other` timed (a profile collected inside this one's block)."""
+        for mine, theirs in ((self.seconds, other.seconds), (self.calls, other.calls), (self.inner, other.inner),
+                             (self.kernel, other.kernel)):
+            for key, value in theirs.items():
+                mine[key] += value
+
 
 _active: StageProfile | None = None
 
@@ -88,24 +95,32 @@ def active() -> bool:
 
 @contextmanager
 def profiling() -> Iterator[StageProfile]:
-    """Collect stage timings for the duration of the block."""
+    """Collect stage timings for the duration of the block. Blocks nest: an inner block's timings also
+    count in the enclosing one (each flight frame profiles its mapping; `bench run` the whole flight)."""
     global _active
     previous, _active = _active, StageProfile()
     try:
         yield _active
     finally:
-        _active = previous
+        inner, _active = _active, previous
+        if previous is not None:
+            previous.merge(inner)
 
 
-# Exclusive stages of one mapping iteration, in pipeline order: (row name, how it is derived).
-def breakdown(p: StageProfile, frames: int) -> list[dict]:
-    """Rows of exclusive time per stage: ms per iteration (iteration stages) or per frame (the rest),
-    and each row's share of all mapping time. `frames`: the add_frame calls profiled."""
+# Exclusive stages of the mapping, in pipeline order: per iteration, then per frame.
+ITERATION_STAGES = ("splat axes", "project", "bin and sort", "forward blend", "render other", "loss (L1, depth)",
+                    "SSIM", "depth normals", "backward blend", "backward reduce and chain", "backward other",
+                    "optimizer step", "view setup")
+FRAME_STAGES = ("densify", "prune", "other")
+
+
+def exclusive_seconds(p: StageProfile) -> dict[str, float]:
+    """Seconds of each mapping stage (ITERATION_STAGES, then FRAME_STAGES), none counted twice: they
+    add up to the time in add_frame."""
     s, k = p.seconds, p.kernel
-    iters = max(1, p.calls["render"])
     fwd_kernel = {name: k[f"forward.{name}_s"] for name in ("project", "bin", "sort", "blend")}
     bwd_kernel = {name: k[f"backward.{name}_s"] for name in ("project", "bin", "sort", "blend", "reduce", "chain")}
-    iteration = {
+    return {
         "splat axes": s["splat axes"] + s["splat axes backward"],  # in render, view setup and backward
         "project": fwd_kernel["project"] + bwd_kernel["project"],
         "bin and sort": fwd_kernel["bin"] + fwd_kernel["sort"] + bwd_kernel["bin"] + bwd_kernel["sort"],
@@ -121,17 +136,22 @@ def breakdown(p: StageProfile, frames: int) -> list[dict]:
         # per optimization call: the target's masks and SSIM moments, the view's culling, the
         # gathered copy of its splats; a replay iteration is a call of its own
         "view setup": p.exclusive("view setup"),
-    }
-    per_frame = {
         "densify": p.exclusive("densify"),
         "prune": p.exclusive("prune"),
         "other": p.exclusive("add_frame"),
     }
-    total = max(s["add_frame"], 1e-12)
-    rows = [{"stage": name, "ms_per_iteration": 1e3 * v / iters, "share": v / total}
-            for name, v in iteration.items()]
-    rows += [{"stage": name, "ms_per_frame": 1e3 * v / max(1, frames), "share": v / total}
-             for name, v in per_frame.items()]
+
+
+def breakdown(p: StageProfile, frames: int) -> list[dict]:
+    """Rows of exclusive time per stage: ms per iteration (iteration stages) or per frame (the rest),
+    and each row's share of all mapping time. `frames`: the add_frame calls profiled."""
+    seconds = exclusive_seconds(p)
+    iters = max(1, p.calls["render"])
+    total = max(p.seconds["add_frame"], 1e-12)
+    rows = [{"stage": name, "ms_per_iteration": 1e3 * seconds[name] / iters, "share": seconds[name] / total}
+            for name in ITERATION_STAGES]
+    rows += [{"stage": name, "ms_per_frame": 1e3 * seconds[name] / max(1, frames), "share": seconds[name] / total}
+             for name in FRAME_STAGES]
     return rows
 
 

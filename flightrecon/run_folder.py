@@ -10,6 +10,7 @@ PROVENANCE = "provenance.json"  # what each flight segment ran with (flightrecon
 CHECKPOINT = "checkpoint.npz"  # the loop's state after the last frame (flightrecon.checkpoint; resume)
 LEGACY_CHECKPOINT = "checkpoint.pkl"  # the pickled checkpoint of earlier versions: refused, never read
 FRAMES = "frames.csv"  # one row per frame: timings, counts, quality
+PROFILE = "profile.csv"  # per frame, the loop's stage times and the mapping's own (flightrecon.flight_profile)
 EVENTS = "events.log"
 DIAGNOSIS = "diagnosis.csv"  # output.diagnose
 MAP = "map.ply"  # the final map

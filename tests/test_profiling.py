@@ -42,12 +42,15 @@ def test_stage_is_a_no_op_outside_a_profile():
     with profiling.profiling() as prof:
         with profiling.stage("render"):
             pass
-        with profiling.profiling() as inner:  # a nested profile collects alone, then the outer resumes
+        with profiling.profiling() as inner:  # a nested profile collects alone, then adds to the outer
             with profiling.stage("loss"):
                 pass
+            profiling.add_kernel("forward", lambda: {"evals": 7.0})
         with profiling.stage("render"):
             pass
-    assert dict(prof.calls) == {"render": 2} and dict(inner.calls) == {"loss": 1}
+    assert dict(inner.calls) == {"loss": 1} and dict(inner.kernel) == {"forward.evals": 7.0}
+    assert dict(prof.calls) == {"render": 2, "loss": 1} and dict(prof.kernel) == {"forward.evals": 7.0}
+    assert prof.seconds["loss"] == inner.seconds["loss"]
 
 
 def test_blend_rates_by_hand():
@@ -68,3 +71,26 @@ def test_ceiling_probe_runs_on_every_thread():
     c = ext.blend_ceiling(0.04)  # raises if its tile wasted an evaluation or blended when it must not
     assert c["threads"] == ext.num_threads()
     assert c["blend_per_s_thread"] > 0 and c["reject_per_s_thread"] > 0
+
+
+def test_flight_profile_summary_by_hand():
+    """Shares of the loop's time per block, from two frames written out by hand: the mapping's stages
+    replace t_map, and what add_frame did not time counts as the mapping's rest."""
+    from flightrecon.flight_profile import MAP_COLUMNS, summary
+
+    zero = dict.fromkeys(MAP_COLUMNS.values(), 0.0)
+    rows = [{"frame": 0, "t_capture": 1.0, "t_map": 6.0, "t_select_update": 0.0, "t_plan": 1.0, "t_score": 2.0,
+             "t_fly_sim": 0.0, **zero, "map_forward_blend": 2.0, "map_backward_blend": 3.0},
+            {"frame": 1, "t_capture": 1.0, "t_map": 2.0, "t_select_update": 0.0, "t_plan": 0.0, "t_score": 1.0,
+             "t_fly_sim": 0.0, **zero, "map_forward_blend": 1.0, "map_backward_blend": 1.0}]
+    table = {r["stage"]: r for r in summary(rows, every=1)}
+    # frame 0: 10 s in all, frame 1: 4 s; 14 s over both
+    assert table["map: forward blend"]["s_per_frame"] == pytest.approx(1.5)
+    assert table["map: forward blend"]["share all"] == pytest.approx(3.0 / 14.0)
+    assert table["map: forward blend"]["share 0-0"] == pytest.approx(0.2)
+    assert table["map: backward blend"]["share 1-1"] == pytest.approx(0.25)
+    assert table["map: rest"]["share 0-0"] == pytest.approx(0.1)  # 6 s of mapping, 5 s of them in stages
+    assert table["score"]["share all"] == pytest.approx(3.0 / 14.0)
+    assert table["loop total"]["s_per_frame"] == pytest.approx(7.0)
+    for block in ("all", "0-0", "1-1"):
+        assert sum(r[f"share {block}"] for name, r in table.items() if name != "loop total") == pytest.approx(1.0)

@@ -70,12 +70,8 @@ def report(name: str, rows: list[dict], out: str | None = None, extra: dict | No
     # the commit, the CPU model and the package versions it ran with, as every run folder records them
     result = {"bench": name, "machine": info, "provenance": provenance.stamp(), "rows": rows, **(extra or {})}
     if rows:
-        keys = list(dict.fromkeys(k for r in rows for k in r))
         print(f"\n## bench {name}\n")
-        print("| " + " | ".join(keys) + " |")
-        print("|" + "---|" * len(keys))
-        for r in rows:
-            print("| " + " | ".join(_fmt(r.get(k, "")) for k in keys) + " |")
+        print(markdown_table(rows))
     for k, v in (extra or {}).items():
         print(f"{k}: {json.dumps(v) if not isinstance(v, str) else v}")
     warning = contention_warning(info)
@@ -84,6 +80,14 @@ def report(name: str, rows: list[dict], out: str | None = None, extra: dict | No
     if out:
         write_json(out, result)
     return result
+
+
+def markdown_table(rows: list[dict]) -> str:
+    """Rows as a Markdown table, one column per key in first-seen order (4 significant digits)."""
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    lines += ["| " + " | ".join(_fmt(r.get(k, "")) for k in keys) + " |" for r in rows]
+    return "\n".join(lines)
 
 
 def _fmt(v: Any) -> str:
