@@ -34,7 +34,7 @@ from flightrecon.active.diagnosis import move_kind
 from flightrecon.active.protocol import MapView, Observation, Selector
 from flightrecon.active.registry import make_selector
 from flightrecon.checkpoint import load_checkpoint, refuse_legacy, save_checkpoint
-from flightrecon.config import ScenarioConfig, load_config, to_toml
+from flightrecon.config import ScenarioConfig, to_toml
 from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import DatasetWriter, write_trajectory_csv
 from flightrecon.errors import ConfigError, DataError, FlightReconError
@@ -48,6 +48,7 @@ from flightrecon.planning.feasibility import CandidateResult, Planner
 from flightrecon.planning.paths import seed_ompl
 from flightrecon.recording import NullRecorder, Stage, open_recorder
 from flightrecon.rig import build_rig
+from flightrecon.scenario import load_config
 from flightrecon.sim.flight import Flight, FlightDiverged
 from flightrecon.sim.quadrotor import camera_offset
 from flightrecon.sim.safety import ClearanceMonitor, FlightContact

@@ -10,12 +10,12 @@ import torch
 import trimesh
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from flightrecon.config import load_config
 from flightrecon.errors import DataError, FlightReconError
 from flightrecon import open3d_import
 from flightrecon.evaluation import lpips_metric
 from flightrecon.evaluation.lpips_metric import LpipsMetric
 from flightrecon.evaluation.mesh_metrics import sample_surface, surface_metrics
+from flightrecon.scenario import load_config
 from flightrecon.scene.surface_distance import SurfaceDistance
 from flightrecon.evaluation.tsdf import fuse_depth_maps
 from flightrecon.evaluation.view_store import load_views, save_views

@@ -25,11 +25,11 @@ from multiprocessing import get_context
 from pathlib import Path
 
 from flightrecon import run_folder, run_lock
-from flightrecon.config import load_config
 from flightrecon.errors import FlightReconError
 from flightrecon.experiments import ray_nodes
 from flightrecon.fileio import write_text
 from flightrecon.memory import keep_freed_memory
+from flightrecon.scenario import load_config
 from flightrecon.threads import available_cores
 
 
