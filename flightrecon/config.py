@@ -4,6 +4,9 @@ Every section is a frozen dataclass whose defaults are the paper's values (Table
 the platform's. Loading rejects unknown keys and out-of-range values with a message that names the
 dotted key, so a typo never silently falls back to a default. Overrides (`--set mapper.k_new=30`)
 use the same validation. The resolved config is written with every run (`to_toml`).
+
+This module is the schema and knows no selector: `flightrecon.scenario.load_config` reads a scenario
+with it and adds the sections the registered selectors declare.
 """
 
 from __future__ import annotations
