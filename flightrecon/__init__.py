@@ -33,7 +33,7 @@ _apply_wait_policy()
 __version__ = "0.1.0"
 
 _API = {
-    "load_config": "flightrecon.config",
+    "load_config": "flightrecon.scenario",
     "option": "flightrecon.config",
     "ScenarioConfig": "flightrecon.config",
     "Mission": "flightrecon.mission",

@@ -4,6 +4,9 @@ Every section is a frozen dataclass whose defaults are the paper's values (Table
 the platform's. Loading rejects unknown keys and out-of-range values with a message that names the
 dotted key, so a typo never silently falls back to a default. Overrides (`--set mapper.k_new=30`)
 use the same validation. The resolved config is written with every run (`to_toml`).
+
+This module is the schema and knows no selector: `flightrecon.scenario.load_config` reads a scenario
+with it and adds the sections the registered selectors declare.
 """
 
 from __future__ import annotations
@@ -276,9 +279,10 @@ class ScenarioConfig:
     evaluation: EvaluationConfig = field(default_factory=EvaluationConfig)
     metrics: MetricsConfig = field(default_factory=MetricsConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
-    # the selectors' own sections (`[reliability]`, `[activegs]`, ...) by name, each with its defaults
-    # unless the file sets it: read like the built-in ones, `cfg.reliability.w_min`
-    sections: dict = field(default_factory=lambda: _section_defaults())
+    # the selectors' own sections (`[reliability]`, `[activegs]`, ...) by name, read like the built-in
+    # ones, `cfg.reliability.w_min`; this module knows no selector: flightrecon.scenario.load_config
+    # fills them from the selector registry, each with its defaults unless the file sets it
+    sections: dict = field(default_factory=dict)
 
     @property
     def required_clearance(self) -> float:
@@ -328,49 +332,8 @@ def _check_value(key: str, value: Any, ftype: Any, meta: dict) -> Any:
     return value
 
 
-def _section_types() -> dict[str, type]:
-    """The selectors' own sections by name (asked of the selector registry, which imports this module)."""
-    from flightrecon.active.registry import config_sections
-
-    return config_sections()
-
-
-def _section_defaults() -> dict[str, Any]:
-    return {name: settings() for name, settings in _section_types().items()}
-
-
-def _move_renamed_keys(data: dict, types: dict[str, type]) -> dict:
-    """Keys a selector's section took over from an older layout (its settings' `moved_from`, e.g.
-    'baselines.gaussmi_lambda_L' -> 'gaussmi.lambda_L'), moved to where they live now, so configs
-    written with earlier runs still load."""
-    data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
-    for section, settings in types.items():
-        for old, new in getattr(settings, "moved_from", {}).items():
-            table, key = old.split(".")
-            if isinstance(data.get(table), dict) and key in data[table]:
-                data.setdefault(section, {})[new] = data[table].pop(key)
-                if not data[table]:
-                    del data[table]
-    return data
-
-
-def _build_scenario(data: dict) -> "ScenarioConfig":
-    """The top level: the built-in sections, and every other table as the selector section of that name."""
-    if not isinstance(data, dict):
-        raise ConfigError(f"config: expected a table, got {data!r}")
-    types = _section_types()
-    data = _move_renamed_keys(data, types)
-    builtin = {f.name for f in dataclasses.fields(ScenarioConfig)} - {"sections"}
-    sections = _section_defaults()
-    for name in sorted(set(data) - builtin):
-        if name not in types:
-            raise ConfigError(f"unknown config key '{name}' (valid: {', '.join(sorted(builtin | set(types)))}; "
-                              "a selector's section is known once its selector is registered)")
-        sections[name] = _build(types[name], data.pop(name), f"{name}.")
-    return dataclasses.replace(_build(ScenarioConfig, data, ""), sections=sections)
-
-
-def _build(cls: type, data: dict, prefix: str) -> Any:
+def from_table(cls: type, data: dict, prefix: str) -> Any:
+    """The dataclass `cls` from a TOML table, every key checked; errors name the key after `prefix`."""
     if not isinstance(data, dict):
         raise ConfigError(f"config key '{prefix.rstrip('.')}': expected a table, got {data!r}")
     hints = typing.get_type_hints(cls)
@@ -382,7 +345,7 @@ def _build(cls: type, data: dict, prefix: str) -> Any:
     for name, value in data.items():
         ftype = hints[name]
         if dataclasses.is_dataclass(ftype):
-            kwargs[name] = _build(ftype, value, f"{prefix}{name}.")
+            kwargs[name] = from_table(ftype, value, f"{prefix}{name}.")
         else:
             kwargs[name] = _check_value(prefix + name, value, ftype, dict(fields[name].metadata))
     return cls(**kwargs)
@@ -432,8 +395,9 @@ def read_toml(path: Path, what: str) -> dict:
         raise ConfigError(f"{what} {path} is not valid TOML: {exc}") from None
 
 
-def load_config(source: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()) -> ScenarioConfig:
-    """Load a scenario TOML (or the defaults when `source` is None), apply overrides, validate."""
+def read_scenario(source: str | Path | None, overrides: list[str] | tuple[str, ...] = ()) -> dict:
+    """The raw tables of a scenario TOML (none when `source` is None, named after its file) with the
+    overrides merged in; flightrecon.scenario.load_config builds and validates them."""
     data: dict = {}
     if source is not None:
         path = resolve_scenario_path(str(source))
@@ -441,7 +405,7 @@ def load_config(source: str | Path | None = None, overrides: list[str] | tuple[s
         data.setdefault("name", path.stem)
     for text in overrides:
         data = _merge(data, parse_override(text))
-    return _build_scenario(data)
+    return data
 
 
 def to_dict(cfg: Any) -> dict:

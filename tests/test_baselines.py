@@ -16,10 +16,10 @@ from flightrecon.active.baselines import (ActiveGSSelector, FisherRFSelector, Ga
 from flightrecon.active.protocol import MapView, Observation
 from flightrecon.active.registry import make_selector, selectors
 from flightrecon.active.selectors import GaussMI2D
-from flightrecon.config import load_config
 from flightrecon.geometry import camera_pose, intrinsics, pixel_rays, rotmat_to_quat
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.render import render
+from flightrecon.scenario import load_config
 
 TINY = ["camera.width=48", "camera.height=36", "selector.scoring_width=24", "selector.scoring_height=18",
         "mapper.k_new=5", "mapper.k_replay=2", "budget.frames=3", "evaluation.views=2"]

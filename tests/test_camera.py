@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.geometry import (backproject_depth, camera_pose, invert_pose, project_points, rot_y,
                                   rot_z)
+from flightrecon.scenario import load_config
 from flightrecon.scene.builder import QuadMeshBuilder
 from flightrecon.scene.patterns import solid
 from flightrecon.scene.procedural import make_scene

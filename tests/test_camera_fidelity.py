@@ -13,8 +13,8 @@ import flightrecon  # noqa: F401  (selects EGL before mujoco loads)
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.geometry import camera_pose, invert_pose
+from flightrecon.scenario import load_config
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world

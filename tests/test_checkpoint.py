@@ -15,7 +15,7 @@ from test_occupancy import _raycast_depth, _room
 from flightrecon import run_folder
 from flightrecon.checkpoint import (FORMAT, FORMAT_VERSION, HEADER, load_checkpoint, refuse_legacy,
                                     save_checkpoint)
-from flightrecon.config import MapperConfig, load_config
+from flightrecon.config import MapperConfig
 from flightrecon.control.reference_paths import MinJerkMove
 from flightrecon.control.trajectory import FlatState
 from flightrecon.errors import CheckpointError
@@ -25,6 +25,7 @@ from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.mapping.store import GaussianMap
 from flightrecon.planning.feasibility import Planner
 from flightrecon.planning.paths import seed_ompl
+from flightrecon.scenario import load_config
 from flightrecon.sim.flight import Flight
 
 W, H = 64, 48

@@ -16,8 +16,8 @@ import math
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.mission import Mission
+from flightrecon.scenario import load_config
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
         "mapper.k_new=8", "mapper.k_replay=4", "evaluation.views=3", "evaluation.every=0", "budget.frames=9",

@@ -4,12 +4,14 @@ from pathlib import Path
 
 import pytest
 
-from flightrecon.config import SCENARIO_DIR, ScenarioConfig, load_config, to_toml
+from flightrecon.config import SCENARIO_DIR, ScenarioConfig, to_toml
 from flightrecon.errors import ConfigError
+from flightrecon.scenario import load_config
 
 
 def test_defaults_are_paper_parameters():
-    cfg = ScenarioConfig()
+    cfg = load_config(None)
+    assert cfg.mapper == ScenarioConfig().mapper  # the loaded defaults are the schema's
     assert (cfg.mapper.gamma, cfg.mapper.k_new, cfg.mapper.k_replay) == (0.05, 60, 40)
     assert (cfg.mapper.lambda_depth, cfg.mapper.lambda_distortion, cfg.mapper.lambda_normal) == (5.0, 1.0, 0.05)
     r = cfg.reliability

@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.control.mixer import Mixer, allocation_matrix
 from flightrecon.control.reference_paths import Chain, FigureEight, MinJerkMove
 from flightrecon.control.se3 import SE3Controller
 from flightrecon.control.trajectory import FlatState, Trajectory
 from flightrecon.errors import ConfigError
+from flightrecon.scenario import load_config
 from flightrecon.sim.quadrotor import SPIN_SIGN, rotor_positions
 
 POS = rotor_positions(0.17)

@@ -22,8 +22,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from flightrecon.config import load_config
 from flightrecon.errors import SceneError
+from flightrecon.scenario import load_config
 from flightrecon.scene.levels import scene_levels
 from flightrecon.scene.source import scene_from_config
 from flightrecon.scene.types import Scene

@@ -11,10 +11,10 @@ import torch
 from flightrecon.active import gaussmi2d
 from flightrecon.active.diagnosis import KINDS, mi_split, move_kind, splat_kinds
 from flightrecon.active.reliability import depth_edges
-from flightrecon.config import load_config
 from flightrecon.evaluation.coverage import SurfaceCoverage
 from flightrecon.geometry import camera_pose, intrinsics
 from flightrecon.mission import Mission
+from flightrecon.scenario import load_config
 from splat_scenes import wall
 
 W, H = 24, 18

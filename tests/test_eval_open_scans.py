@@ -16,13 +16,13 @@ import torch
 import trimesh
 
 from flightrecon.cli import main as cli_main
-from flightrecon.config import load_config
 from flightrecon.evaluation.views import VALID_DEPTH_SHARE, evaluation_poses, sees_surface, view_metrics
 from flightrecon.evaluation.visible_surface import visible_surface
 from flightrecon.mapping.image_metrics import psnr
 from flightrecon.metric_defs import PSNR_MAX_DB, mean_metrics
 from flightrecon.render import RenderOutput
 from flightrecon.rig import build_rig
+from flightrecon.scenario import load_config
 from flightrecon.scene.free_space import room_free_space
 from flightrecon.scene.procedural import make_scene
 from flightrecon.scene.replica_ply import write_replica_ply

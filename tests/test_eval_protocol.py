@@ -12,10 +12,10 @@ import torch
 import trimesh
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from flightrecon.config import load_config
 from flightrecon.evaluation.intervals import mean_interval, paired_difference
 from flightrecon.evaluation.views import HEADING_SECTORS, evaluation_poses, grid_size, view_metrics
 from flightrecon.evaluation.visible_surface import visible_surface
+from flightrecon.scenario import load_config
 from flightrecon.scene.free_space import room_free_space
 from flightrecon.rig import flight_region, truth_field
 from flightrecon.scene.source import procedural_scene

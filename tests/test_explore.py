@@ -9,10 +9,10 @@ import torch
 from flightrecon.active.explore import PRIOR_GAIN, GaussMI2DExplore, frontier_pixels, integrate_seen_space
 from flightrecon.active.protocol import Observation
 from flightrecon.active.registry import make_selector
-from flightrecon.config import load_config
 from flightrecon.geometry import camera_pose, intrinsics
 from flightrecon.mission import Mission
 from flightrecon.planning.occupancy import OccupancyMap
+from flightrecon.scenario import load_config
 
 TINY = ["camera.width=48", "camera.height=36", "selector.scoring_width=24", "selector.scoring_height=18",
         "mapper.k_new=5", "mapper.k_replay=2", "budget.frames=4", "budget.initial_views=1", "evaluation.views=2",

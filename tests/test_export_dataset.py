@@ -8,11 +8,12 @@ import pickle
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config, to_toml
+from flightrecon.config import to_toml
 from flightrecon.dataset import load_dataset
 from flightrecon.errors import CheckpointError
 from flightrecon.mapping.frames import expand_frame
 from flightrecon.mission import Mission
+from flightrecon.scenario import load_config
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
         "mapper.k_new=5", "mapper.k_replay=3", "evaluation.views=2", "evaluation.every=0", "budget.frames=3",

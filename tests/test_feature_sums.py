@@ -9,7 +9,6 @@ import torch
 
 from flightrecon.active import gaussmi2d
 from flightrecon.active.protocol import scoring_intrinsics
-from flightrecon.config import load_config
 from flightrecon.control.trajectory import FlatState
 from flightrecon.errors import DataError, FlightReconError
 from flightrecon.geometry import camera_pose, intrinsics, rotmat_to_quat
@@ -17,6 +16,7 @@ from flightrecon.mission import Mission
 from flightrecon.render import render, sided_feature_sums
 from flightrecon.render.feature_sums import side_values, view_cosines
 from flightrecon.render.projection import quat_to_rotmat
+from flightrecon.scenario import load_config
 
 W, H = 48, 36
 

@@ -7,10 +7,10 @@ import mujoco
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.control.reference_paths import FigureEight, MinJerkMove
 from flightrecon.control.trajectory import Hold
 from flightrecon.geometry import camera_pose_from_body, make_pose
+from flightrecon.scenario import load_config
 from flightrecon.sim.flight import Flight
 from flightrecon.sim.quadrotor import DroneHandle, add_quadrotor
 from flightrecon.sim.safety import FlightContact, FlightDiverged

@@ -17,9 +17,9 @@ from flightrecon.active.frontier_mi import GaussMI2DFrontier
 from flightrecon.active.protocol import MapView
 from flightrecon.active.registry import make_selector
 from flightrecon.active.selectors import GaussMI2D
-from flightrecon.config import load_config
 from flightrecon.geometry import camera_pose
 from flightrecon.mission import Mission
+from flightrecon.scenario import load_config
 from test_baselines import TINY, _mapper, _obs
 
 BOUNDS = np.array([[-1.0, -2.0, 0.0], [3.0, 2.0, 2.4]])

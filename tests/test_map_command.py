@@ -7,10 +7,10 @@ import pytest
 from skimage.metrics import peak_signal_noise_ratio
 
 from flightrecon.cli import main
-from flightrecon.config import load_config
 from flightrecon.dataset import DatasetWriter
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.ply import load_map
+from flightrecon.scenario import load_config
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.geometry import camera_pose, pixel_rays, project_points, quat_to_rotmat
 from flightrecon.mapping import init as splat_init
 from flightrecon.mapping.voxel_hash import reject_near
+from flightrecon.scenario import load_config
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world

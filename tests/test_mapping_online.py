@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from flightrecon.config import MapperConfig, load_config
+from flightrecon.config import MapperConfig
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.frames import Window, window_intrinsics
 from flightrecon.mapping.image_metrics import depth_l1
 from flightrecon.mapping.mapper import TRAIN_OUTPUTS, OnlineMapper, seed_share
 from flightrecon.mapping.voxel_hash import voxel_keys
+from flightrecon.scenario import load_config
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world

@@ -8,13 +8,14 @@ import math
 import pytest
 import torch
 
-from flightrecon.config import MapperConfig, load_config
+from flightrecon.config import MapperConfig
 from flightrecon.evaluation.views import EvaluationSet, view_metrics
 from flightrecon.experiments import report, run_eval
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.mapping.offline import evaluate_view
 from flightrecon.metric_defs import METRICS, PSNR_MAX_DB, mean_metrics, select, summary_line
+from flightrecon.scenario import load_config
 from flightrecon.scene.procedural import make_scene
 from flightrecon.sim.camera import RGBDCamera
 from flightrecon.sim.world import build_world

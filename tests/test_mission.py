@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.errors import FlightReconError
 from flightrecon.mapping.ply import load_map
 from flightrecon.mission import Mission
+from flightrecon.scenario import load_config
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
         "mapper.k_new=8", "mapper.k_replay=4", "evaluation.views=3", "evaluation.every=1"]

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from flightrecon.config import load_config
 from flightrecon.geometry import backproject_depth, camera_pose, intrinsics, pixel_rays
 from flightrecon.planning.distance_field import DistanceField
 from flightrecon.planning.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
+from flightrecon.scenario import load_config
 
 H = 0.05
 

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from flightrecon.config import load_config
 from flightrecon.control.trajectory import FlatState, Trajectory
 from flightrecon.planning.feasibility import REASONS, Planner
+from flightrecon.scenario import load_config
 
 START = np.array([0.0, 0.0, 1.2])
 

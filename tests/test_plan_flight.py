@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.control.trajectory import FlatState
 from flightrecon.planning.feasibility import Planner
+from flightrecon.scenario import load_config
 
 
 @pytest.mark.slow

@@ -17,10 +17,10 @@ import pytest
 import rerun as rr
 import trimesh
 
-from flightrecon.config import load_config
 from flightrecon.errors import FlightReconError
 from flightrecon.mission import Mission
 from flightrecon.recording import NullRecorder, decimate_mesh, open_recorder, recording_segments
+from flightrecon.scenario import load_config
 from flightrecon.scene.types import Scene
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",

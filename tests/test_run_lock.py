@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 from flightrecon import run_folder, run_lock
-from flightrecon.experiments.sweep import execute, plan_runs, status
+from flightrecon.experiments.sweep import execute, plan_runs
+from flightrecon.experiments.sweep_run import status
 
 TINY = ["camera.width=80", "camera.height=60", "budget.frames=2", "budget.initial_views=1"]
 
@@ -125,8 +126,8 @@ def test_a_sweep_skips_a_run_another_process_flies_and_writes_nothing_into_it(tm
 
 @pytest.mark.slow
 def test_a_mission_refuses_to_fly_a_folder_another_process_flies(tmp_path, other_process):
-    from flightrecon.config import load_config
     from flightrecon.mission import Mission
+    from flightrecon.scenario import load_config
 
     run_dir = tmp_path / "run"
     proc = other_process(run_dir)

@@ -13,8 +13,8 @@ import math
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.mission import Mission
+from flightrecon.scenario import load_config
 from flightrecon.scene.scanify import ScanOptions, scan_procedural, write_scan
 from scan_corpus import scan_corpus
 

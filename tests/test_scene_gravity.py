@@ -15,8 +15,8 @@ from scipy.spatial.transform import Rotation
 
 from flightrecon.cli import main as cli_main
 from flightrecon.commands.scene import _up_axis_line
-from flightrecon.config import load_config
 from flightrecon.errors import ConfigError, SceneError
+from flightrecon.scenario import load_config
 from flightrecon.scene import load_scene
 from flightrecon.scene.gravity import AXIS_ROTATIONS
 from flightrecon.scene.loaders import _Y_UP_TO_Z_UP

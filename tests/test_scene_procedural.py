@@ -81,7 +81,7 @@ def test_unknown_name_is_a_scene_error():
 
 
 def test_scene_from_config_caches_in_replica_format(tmp_path):
-    from flightrecon.config import load_config
+    from flightrecon.scenario import load_config
 
     cfg = load_config(None, [f'scene.cache_dir="{tmp_path}"', 'scene.name="room1"'])
     first = scene_from_config(cfg.scene)

@@ -126,7 +126,7 @@ def test_register_refuses_what_would_break_the_loop_or_the_config():
 
 def test_a_script_registers_its_own_selector(tmp_path):
     registry.register(_Named)
-    from flightrecon.config import load_config
+    from flightrecon.scenario import load_config
 
     cfg = load_config("demo", ["selector.method=dummy_for_registry_test"])
     sel = registry.make_selector(cfg)

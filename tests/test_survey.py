@@ -8,9 +8,9 @@ import pytest
 import trimesh
 
 from flightrecon.cli import main
-from flightrecon.config import load_config
 from flightrecon.dataset import load_dataset
 from flightrecon.geometry import backproject_depth, rot_z
+from flightrecon.scenario import load_config
 from flightrecon.scene.source import scene_from_config
 from flightrecon.rig import takeoff_point
 from flightrecon.survey import scene_distance_field, survey_waypoints

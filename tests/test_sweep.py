@@ -17,7 +17,8 @@ import pytest
 
 from flightrecon.experiments.report import (add_equal_time_psnr, collect, ranking_over_frames, write_figures,
                                              write_tables)
-from flightrecon.experiments.sweep import execute, failure, plan_runs, status
+from flightrecon.experiments.sweep import execute, plan_runs
+from flightrecon.experiments.sweep_run import failure, status
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
         "mapper.k_new=5", "mapper.k_replay=2", "budget.frames=3", "budget.initial_views=1",

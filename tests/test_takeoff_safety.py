@@ -16,8 +16,8 @@ import pytest
 import trimesh
 
 from flightrecon.cli import main
-from flightrecon.config import load_config
 from flightrecon.errors import SceneError
+from flightrecon.scenario import load_config
 from flightrecon.scene.free_space import room_free_space
 from flightrecon.planning.poses import start_position
 from flightrecon.rig import flight_region

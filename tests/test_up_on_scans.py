@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
+from flightrecon.scenario import load_config
 from flightrecon.scene.gravity import estimate_up
 from flightrecon.scene.loaders import load_scene
 from flightrecon.scene.source import scene_from_config

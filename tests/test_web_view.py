@@ -23,8 +23,8 @@ import cv2
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
 from flightrecon.mission import Mission
+from flightrecon.scenario import load_config
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 pytestmark = [pytest.mark.slow,

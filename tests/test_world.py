@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from flightrecon.config import load_config
+from flightrecon.scenario import load_config
 from flightrecon.scene.builder import QuadMeshBuilder
 from flightrecon.scene.patterns import solid
 from flightrecon.scene.procedural import make_scene

@@ -25,8 +25,8 @@ from flightrecon.active import baselines
 from flightrecon.active.candidate_views import render_candidates
 from flightrecon.active.protocol import capture_view, float_tensor
 from flightrecon.active.registry import register
-from flightrecon.config import load_config
 from flightrecon.mission import Mission
+from flightrecon.scenario import load_config
 
 
 class TracedGaussMI(baselines.GaussMISelector):

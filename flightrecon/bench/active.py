@@ -26,10 +26,10 @@ from flightrecon.active import gaussmi2d
 from flightrecon.active.protocol import MapView, scoring_intrinsics
 from flightrecon.active.selectors import GaussMI2D
 from flightrecon.bench.common import report, time_call
-from flightrecon.config import load_config
 from flightrecon.control.trajectory import FlatState
 from flightrecon.mission import Mission
 from flightrecon.render import render
+from flightrecon.scenario import load_config
 
 STAGES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
 

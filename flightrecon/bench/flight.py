@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 from flightrecon.bench.common import report
-from flightrecon.config import load_config
+from flightrecon.scenario import load_config
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

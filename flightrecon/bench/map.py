@@ -26,13 +26,13 @@ import numpy as np
 import torch
 
 from flightrecon import profiling
-from flightrecon.config import load_config
 from flightrecon.dataset import load_dataset
 from flightrecon.fileio import write_json
 from flightrecon.mapping.offline import evaluate_view, masked_metrics, train_on_dataset, training_coverage
 from flightrecon.mapping.ply import save_map
 from flightrecon.metric_defs import mean_metrics
 from flightrecon.render.extension import load
+from flightrecon.scenario import load_config
 
 from flightrecon.bench.common import report, thread_counts
 

@@ -76,8 +76,8 @@ def run(args: argparse.Namespace) -> dict:
 
 def _warm_caches(args: argparse.Namespace) -> None:
     """Build the rasterizer and bake the scene now, so that no timed flight pays for them."""
-    from flightrecon.config import load_config
     from flightrecon.render.extension import load
+    from flightrecon.scenario import load_config
     from flightrecon.scene.source import scene_from_config
     from flightrecon.sim.world import bake_scene
 

@@ -18,11 +18,11 @@ import time
 import numpy as np
 
 from flightrecon.bench.common import report, time_call
-from flightrecon.config import load_config
 from flightrecon.control.trajectory import FlatState
 from flightrecon.geometry import camera_pose
 from flightrecon.planning.feasibility import Planner
 from flightrecon.planning.poses import sample_free_poses, start_position, workspace_of
+from flightrecon.scenario import load_config
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -18,8 +18,8 @@ from pathlib import Path
 
 from flightrecon import profiling, run_folder
 from flightrecon.bench.common import report
-from flightrecon.config import load_config
 from flightrecon.mission import Mission
+from flightrecon.scenario import load_config
 
 STAGES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
 

@@ -29,8 +29,8 @@ def _timed(fn):
 def run(args) -> dict:
     import flightrecon  # noqa: F401  (EGL before mujoco)
 
-    from flightrecon.config import load_config
     from flightrecon.geometry import camera_pose
+    from flightrecon.scenario import load_config
     from flightrecon.scene import load_scene
     from flightrecon.scene.procedural import make_scene
     from flightrecon.scene.source import write_scene_dir

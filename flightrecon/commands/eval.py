@@ -45,9 +45,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _write_views(args: argparse.Namespace) -> int:
-    from flightrecon.config import load_config
     from flightrecon.experiments.run_eval import evaluation_views_for
     from flightrecon.evaluation.view_store import save_views, views_path
+    from flightrecon.scenario import load_config
 
     base = load_config(args.views, args.overrides)
     for scene in args.scenes or [base.scene.name]:

@@ -13,9 +13,10 @@ import sys
 import time
 from pathlib import Path
 
-from flightrecon.config import ScenarioConfig, load_config
+from flightrecon.config import ScenarioConfig
 from flightrecon.errors import FlightReconError
 from flightrecon.metric_defs import summary_line
+from flightrecon.scenario import load_config
 
 
 def register(sub: argparse._SubParsersAction) -> None:

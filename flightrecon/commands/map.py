@@ -16,10 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from flightrecon import fileio, run_folder
-from flightrecon.config import load_config, to_toml
+from flightrecon.config import to_toml
 from flightrecon.dataset import encode_color_png, encode_depth_png, load_dataset
 from flightrecon.errors import ConfigError
 from flightrecon.metric_defs import mean_metrics, summary_line
+from flightrecon.scenario import load_config
 
 
 def register(sub: argparse._SubParsersAction) -> None:

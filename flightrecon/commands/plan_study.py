@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from flightrecon.config import load_config
 from flightrecon.control.trajectory import FlatState
 from flightrecon.errors import ConfigError
 from flightrecon.fileio import atomic_path, write_text
@@ -32,6 +31,7 @@ from flightrecon.planning.feasibility import PlanningSettings, PlanningTimes, ch
 from flightrecon.planning.library import load_library
 from flightrecon.planning.occupancy import FREE, OCCUPIED
 from flightrecon.planning.poses import sample_free_poses, start_position, workspace_of
+from flightrecon.scenario import load_config
 
 
 def register(sub: argparse._SubParsersAction) -> None:

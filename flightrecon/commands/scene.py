@@ -128,8 +128,8 @@ def _scanify(args) -> int:
 
 
 def _info(args) -> int:
-    from flightrecon.config import load_config
     from flightrecon.planning.poses import start_position, workspace_of
+    from flightrecon.scenario import load_config
     from flightrecon.scene.free_space import HOLE_RADIUS
     from flightrecon.scene.stats import summary
 
@@ -195,7 +195,7 @@ def _up_axis_line(s: dict) -> str:
 
 
 def _tour(args) -> int:
-    from flightrecon.config import load_config
+    from flightrecon.scenario import load_config
     from flightrecon.fileio import write_json
     from flightrecon.geometry import camera_pose
     from flightrecon.sim.camera import RGBDCamera

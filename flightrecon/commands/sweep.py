@@ -51,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from flightrecon.errors import FlightReconError
     from flightrecon.experiments.report import collect, write_figures, write_tables
-    from flightrecon.experiments.sweep import execute, failure, plan_runs
+    from flightrecon.experiments.sweep import execute, plan_runs
+    from flightrecon.experiments.sweep_run import failure
 
     if args.seeds < 1 or args.jobs < 1 or (args.max_runs is not None and args.max_runs < 0):
         raise FlightReconError("sweep: --seeds and --jobs must be at least 1, and --max-runs at least 0")

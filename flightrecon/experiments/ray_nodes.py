@@ -19,6 +19,7 @@ from pathlib import Path
 
 from flightrecon import run_folder
 from flightrecon.config import to_toml
+from flightrecon.experiments.sweep_run import RunSpec, run_one
 from flightrecon.fileio import write_bytes, write_text
 
 # what `experiments.report` reads from a finished run, and what says how it was flown; eval.json
@@ -51,13 +52,11 @@ def sees_run_root(run_root: str | Path, token: str) -> bool:
         return False
 
 
-def run_on_node(spec, threads: int, allow_code_change: bool, token: str, transfer: str,
+def run_on_node(spec: RunSpec, threads: int, allow_code_change: bool, token: str, transfer: str,
                 scenario_toml: str) -> tuple[str, str, dict[str, bytes] | None]:
     """The Ray task: (driver's run folder, what was done, result files or None when flown in place).
     `scenario_toml` is the run's resolved scenario, so a node needs no copy of the
     driver's scenario file."""
-    from flightrecon.experiments.sweep import run_one
-
     if transfer == "never" or (transfer == "auto" and sees_run_root(spec.run_root, token)):
         return (*run_one(spec, threads, allow_code_change), None)
     local_root = node_root() / hashlib.sha1(str(Path(spec.run_root).resolve()).encode()).hexdigest()[:12]
@@ -81,5 +80,5 @@ def receive(run_dir: str | Path, files: dict[str, bytes]) -> None:
             (run_dir / name).unlink()
 
 
-def resolved_scenario(spec) -> str:
+def resolved_scenario(spec: RunSpec) -> str:
     return to_toml(spec.config())

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from flightrecon import provenance, run_folder
-from flightrecon.config import ScenarioConfig, load_config
+from flightrecon.config import ScenarioConfig
 from flightrecon.errors import FlightReconError
 from flightrecon.evaluation.lpips_metric import LpipsMetric
 from flightrecon.evaluation.map_metrics import EvaluationTruth, evaluate_map, fusion_poses
@@ -27,6 +27,7 @@ from flightrecon.geometry import intrinsics
 from flightrecon.mapping.ply import load_map
 from flightrecon.metric_defs import select
 from flightrecon.rig import build_rig
+from flightrecon.scenario import load_config
 from flightrecon.scene.surface_distance import SurfaceDistance
 
 OVER_FRAMES = select("psnr", "depth_l1_cm", "accuracy_cm", "completion_cm", "chamfer_cm", "fscore")

@@ -2,13 +2,12 @@
 
 Run folders: <output.run_root>/<scenario>/<scene>/<method>/seed<k>/ (the scene level keeps the
 eight scenes of one scenario apart); a sweep over scene variants (`scene_seeds`) names the scene
-level <scene>.v<scene seed>, so each variant is a scene of its own to the report (its unit). A run is finished when its eval.json exists; a run with a
-map.ply but no eval.json is only evaluated; a run with a checkpoint continues with
-`Mission.resume`. A flight that stops with an error (it diverged, or met bad data) leaves failed.txt
-with the reason beside its checkpoint: the sweep goes on with the other runs, reports it, and skips
-it on later calls unless told to retry (after the cause is fixed, it resumes from the checkpoint).
-A run another process flies (a second sweep over the same root) is skipped, not flown twice
-(`run_lock`).
+level <scene>.v<scene seed>, so each variant is a scene of its own to the report (its unit). One
+run's states and how it is brought to done are `experiments.sweep_run`. A flight that stops with an
+error (it diverged, or met bad data) leaves failed.txt with the reason beside its checkpoint: the
+sweep goes on with the other runs, reports it, and skips it on later calls unless told to retry
+(after the cause is fixed, it resumes from the checkpoint). A run another process flies (a second
+sweep over the same root) is skipped, not flown twice (`run_lock`).
 Executors: `local` (a process pool of `jobs` workers, inline when jobs = 1) or `ray` (the same task
 on a Ray cluster, local or `ray_address`; nodes without the driver's file system send the result
 files back: `experiments.ray_nodes`).
@@ -20,42 +19,15 @@ import os
 import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
 from multiprocessing import get_context
-from pathlib import Path
 
-from flightrecon import run_folder, run_lock
-from flightrecon.config import load_config
+from flightrecon import run_lock
+from flightrecon.active.registry import check_method
 from flightrecon.errors import FlightReconError
 from flightrecon.experiments import ray_nodes
-from flightrecon.fileio import write_text
-from flightrecon.memory import keep_freed_memory
+from flightrecon.experiments.sweep_run import RunSpec, failure, run_one, status
+from flightrecon.scenario import load_config
 from flightrecon.threads import available_cores
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    scenario: str
-    scene: str
-    method: str
-    seed: int
-    overrides: tuple[str, ...]
-    run_root: str
-    scene_seed: int | None = None  # the scene variant (scene.seed); None: the scenario's own
-
-    @property
-    def scene_folder(self) -> str:
-        return run_folder.scene_folder(self.scene, self.scene_seed)
-
-    @property
-    def run_dir(self) -> Path:
-        return Path(self.run_root) / Path(self.scenario).stem / self.scene_folder / self.method / f"seed{self.seed}"
-
-    def config(self):
-        variant = [] if self.scene_seed is None else [f"scene.seed={self.scene_seed}"]
-        return load_config(self.scenario, list(self.overrides) + variant + [
-            f"scene.name={self.scene}", f"selector.method={self.method}", f"seed={self.seed}",
-            "output.record=false", "evaluation.snapshots=true"])
 
 
 def plan_runs(scenario: str, scenes: list[str], methods: list[str], seeds: int, overrides: list[str],
@@ -67,27 +39,10 @@ def plan_runs(scenario: str, scenes: list[str], methods: list[str], seeds: int, 
     variants = [None] if scene_seeds is None else list(dict.fromkeys(scene_seeds))
     specs = [RunSpec(scenario, sc, m, k, tuple(overrides), root, v) for sc in scenes for v in variants
              for m in methods for k in range(seeds)]
-    from flightrecon.active.registry import check_method
-
     for s in specs:
         s.config()
         check_method(s.method, key="sweep --methods")
     return specs
-
-
-def status(spec: RunSpec) -> str:
-    d = spec.run_dir
-    if (d / run_folder.EVAL).is_file():
-        return "done"
-    if run_lock.holder(d) is not None:
-        return "running"
-    if (d / run_folder.FAILED).is_file():
-        return "failed"
-    if (d / run_folder.METRICS).is_file() and (d / run_folder.MAP).is_file():
-        return "evaluate"
-    if (d / run_folder.CHECKPOINT).is_file():
-        return "resume"
-    return "new"
 
 
 def _skipped(spec: RunSpec, state: str) -> str:
@@ -97,55 +52,6 @@ def _skipped(spec: RunSpec, state: str) -> str:
         claim = run_lock.holder(spec.run_dir)
         return f"skipped (being flown by {run_lock.describe(claim) if claim else 'a process that just ended'})"
     return f"skipped (failed earlier; --retry-failed flies it on): {failure(spec)}"
-
-
-def failure(spec: RunSpec) -> str | None:
-    """Why the run's flight stopped, or None."""
-    path = spec.run_dir / run_folder.FAILED
-    return path.read_text().strip() if path.is_file() else None
-
-
-def run_one(spec: RunSpec, threads: int = 0, allow_code_change: bool = False) -> tuple[str, str]:
-    """Bring one run to 'done', or to 'failed' when its flight stops with an error (the reason goes
-    to failed.txt); returns (run folder, what was done).
-
-    Pool and ray workers start here, not in the CLI, so the malloc tuning the CLI applies to its
-    own process is applied here too. Their OpenMP wait policy is already set: they import
-    flightrecon (flightrecon.threads) before torch, and inherit the parent's environment."""
-    keep_freed_memory()
-    if threads > 0:
-        import torch
-
-        torch.set_num_threads(threads)
-    try:
-        with run_lock.claim(spec.run_dir):
-            return _fly_and_evaluate(spec, allow_code_change)
-    except run_lock.RunInUse as exc:  # another sweep took it since this one planned: its result, not ours
-        return str(spec.run_dir), f"skipped ({exc})"
-
-
-def _fly_and_evaluate(spec: RunSpec, allow_code_change: bool) -> tuple[str, str]:
-    from flightrecon.experiments.run_eval import evaluate_run
-    from flightrecon.mission import Mission
-
-    state = status(spec)
-    if state == "done":
-        return str(spec.run_dir), "skipped (finished)"
-    if state == "failed":  # asked to retry: fly on from the checkpoint
-        (spec.run_dir / run_folder.FAILED).unlink()
-        state = status(spec)
-    if state in ("new", "resume"):
-        try:
-            mission = (Mission.resume(spec.run_dir, progress=False) if state == "resume"
-                       else Mission(spec.config(), spec.run_dir, progress=False))
-            mission.allow_code_change = allow_code_change
-            mission.run()
-        except FlightReconError as exc:
-            write_text(spec.run_dir / run_folder.FAILED, f"{exc}\n")
-            return str(spec.run_dir), f"failed: {exc}"
-    evaluate_run(spec.run_dir)
-    return str(spec.run_dir), {"new": "flown and evaluated", "resume": "resumed and evaluated",
-                               "evaluate": "evaluated"}[state]
 
 
 def execute(specs: list[RunSpec], jobs: int = 1, executor: str = "local", ray_address: str | None = None,

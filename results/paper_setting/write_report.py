@@ -1,5 +1,5 @@
 """Rewrite runs/office0/report from every finished paper-setting flight, with the code they were
-flown with (run from the 0553db2 worktree: `cd /tmp/paper-code && python <this file>`).
+flown with (run from the 0553db2 worktree: `cd <worktree> && python <this file>`).
 
 Needed when flights were split between sweeps with different --methods (0553db2 has no per-run lock,
 so two sweeps over one root must not share a method): each such sweep writes a report of its own
