@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from flightrecon.cli import main
 from flightrecon.errors import FlightReconError
+from flightrecon.flight_profile import MAP_COLUMNS, read_profile
 from flightrecon.mapping.ply import load_map
 from flightrecon.mission import Mission
 from flightrecon.scenario import load_config
@@ -30,13 +32,24 @@ def _rows(run_dir: Path) -> list[dict]:
 
 
 @pytest.mark.slow
-def test_short_flight_improves_and_writes_outputs(tmp_path):
+def test_short_flight_improves_and_writes_outputs(tmp_path, capsys):
     cfg = load_config("demo", TINY + ["budget.frames=6", "budget.initial_views=3"])
     metrics = Mission(cfg, tmp_path, progress=False).run()
-    for name in ("config.toml", "frames.csv", "map.ply", "metrics.json", "trajectory.csv", "events.log",
-                 "checkpoint.npz"):
+    for name in ("config.toml", "frames.csv", "profile.csv", "map.ply", "metrics.json", "trajectory.csv",
+                 "events.log", "checkpoint.npz"):
         assert (tmp_path / name).is_file(), name
     rows = _rows(tmp_path)
+    # the profile splits each frame's mapping time into its stages, without counting any twice
+    profile = read_profile(tmp_path)
+    assert [int(r["frame"]) for r in profile] == list(range(6))
+    for frame, p in zip(rows, profile):
+        stages = sum(p[c] for c in MAP_COLUMNS.values())
+        assert p["map_iterations"] == 8 + 4 and min(p[c] for c in MAP_COLUMNS.values()) > -1e-3
+        assert 0.8 * float(frame["t_map"]) < stages <= float(frame["t_map"])
+        assert p["t_map"] == pytest.approx(float(frame["t_map"]), rel=1e-5)
+    assert main(["profile", str(tmp_path), "--every", "3"]) == 0
+    printed = capsys.readouterr().out
+    assert "| map: forward blend |" in printed and "share 0-2" in printed and "share 3-5" in printed
     assert [int(r["frame"]) for r in rows] == list(range(6))
     psnr = [float(r["eval_psnr"]) for r in rows]
     dl1 = [float(r["eval_depth_l1_cm"]) for r in rows]
@@ -100,6 +113,7 @@ def test_kill_and_resume_equals_uninterrupted(tmp_path):
     assert ma["splats_pruned"] == mb["splats_pruned"] > 0
     keys = ("frame", "sim_time", "n_splats", "n_feasible", "chosen_score", "flight_distance")
     assert [[r[k] for k in keys] for r in _rows(whole)] == [[r[k] for k in keys] for r in _rows(broken)]
+    assert [r["map_iterations"] for r in read_profile(broken)] == [r["map_iterations"] for r in read_profile(whole)]
 
 
 def test_resume_of_a_folder_without_a_run_names_it(tmp_path):

@@ -27,11 +27,11 @@ from flightrecon.active.protocol import MapView, scoring_intrinsics
 from flightrecon.active.selectors import GaussMI2D
 from flightrecon.bench.common import report, time_call
 from flightrecon.control.trajectory import FlatState
+from flightrecon.flight_profile import LOOP_STAGES
 from flightrecon.mission import Mission
 from flightrecon.render import render
 from flightrecon.scenario import load_config
 
-STAGES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -107,12 +107,12 @@ def run(args: argparse.Namespace) -> dict:
         per_cand = [1e3 * r["t_score"] / r["n_feasible"] for r in rows
                     if r.get("n_feasible", 0) > 1 and "t_score" in r]
         trend = np.polyfit(np.arange(len(per_cand)), per_cand, 1)[0] if len(per_cand) > 1 else float("nan")
-        frame_s = [sum(r.get(k, 0.0) for k in STAGES) for r in rows]
+        frame_s = [sum(r.get(k, 0.0) for k in LOOP_STAGES) for r in rows]
         res = [(cfg.selector.scoring_width, cfg.selector.scoring_height), (640, 480)]
         scoring = [{"resolution": f"{w}x{h}", **_score_times(mission, w, h, args.repeat)} for w, h in res]
         selector = _selector_time(mission, args.repeat)
     agreement = ranking_agreement(scoring[0].pop("scores"), scoring[1].pop("scores"))
-    breakdown = {k: statistics.median(r[k] for r in rows if k in r) for k in STAGES if any(k in r for r in rows)}
+    breakdown = {k: statistics.median(r[k] for r in rows if k in r) for k in LOOP_STAGES if any(k in r for r in rows)}
     extra = {
         "flight": f"{args.scenario} {cfg.camera.width}x{cfg.camera.height}, {len(rows)} frames, "
                   f"{metrics['splats']} splats at the end",

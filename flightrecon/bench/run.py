@@ -18,10 +18,10 @@ from pathlib import Path
 
 from flightrecon import profiling, run_folder
 from flightrecon.bench.common import report
+from flightrecon.flight_profile import LOOP_STAGES
 from flightrecon.mission import Mission
 from flightrecon.scenario import load_config
 
-STAGES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
 
 NOT_IN_ALL = "a whole 200-frame flight, about half an hour on 2 cores"
 
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> dict:
     wall = time.perf_counter() - t0
     rows = mission.state.records
     stages = []
-    for k in STAGES:
+    for k in LOOP_STAGES:
         vals = [r[k] for r in rows if k in r]
         if vals:
             stages.append({"stage": k.removeprefix("t_"), "total_s": sum(vals), "median_s": statistics.median(vals),

@@ -25,7 +25,7 @@ from typing import Iterator, NoReturn
 
 import numpy as np
 
-from flightrecon import provenance, run_folder, run_lock, threads
+from flightrecon import profiling, provenance, run_folder, run_lock, threads
 from flightrecon.active.protocol import MapView, Observation
 from flightrecon.active.registry import make_selector
 from flightrecon.checkpoint import load_checkpoint, refuse_legacy, save_checkpoint
@@ -34,6 +34,7 @@ from flightrecon.control.trajectory import FlatState
 from flightrecon.dataset import DatasetWriter, write_trajectory_csv
 from flightrecon.errors import DataError, FlightReconError
 from flightrecon.fileio import write_text
+from flightrecon.flight_profile import mapping_columns
 from flightrecon.geometry import camera_pose_from_body, make_pose, rot_z
 from flightrecon.mapping.mapper import OnlineMapper
 from flightrecon.mapping.ply import save_map
@@ -187,10 +188,11 @@ class Mission:
         row["t_capture"], row["sim_time"] = time.perf_counter() - t, self.flight.time
         row["threads"] = self.free_cores.update()
         t = time.perf_counter()
-        with self._stage("mapping"):
+        with self._stage("mapping"), profiling.profiling() as prof:
             self.mapper.add_frame(rgb, depth, self.rig.K, T_wc)
             self.mapper.map.check_finite()
         row["t_map"] = time.perf_counter() - t
+        row.update(mapping_columns(prof))
         t = time.perf_counter()
         with self._stage("selector update"):
             # the one render of the map at the captured pose: selector update, frame quality, recording

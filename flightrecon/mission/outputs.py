@@ -1,5 +1,5 @@
-"""What a flight writes besides its map and checkpoint: frames.csv, events.log and diagnosis.csv
-after every frame, metrics.json at the end.
+"""What a flight writes besides its map and checkpoint: frames.csv, profile.csv, events.log and
+diagnosis.csv after every frame, metrics.json at the end.
 
 Files are written whole and atomically (fileio), so a killed run never leaves a torn one.
 """
@@ -15,18 +15,20 @@ import numpy as np
 from flightrecon import provenance, run_folder
 from flightrecon.config import ScenarioConfig
 from flightrecon.fileio import write_json, write_text
+from flightrecon.flight_profile import LOOP_STAGES, PROFILE_COLUMNS
 from flightrecon.mission.state import MissionState
 
 FRAME_COLUMNS = ("frame", "sim_time", "t_capture", "t_map", "t_select_update", "t_plan", "t_score",
                  "t_fly_sim", "n_splats", "n_candidates", "n_feasible", "n_ompl", "chosen_score",
                  "flight_time", "flight_distance", "recovery", "frame_psnr", "frame_depth_l1_cm",
                  "eval_psnr", "eval_depth_l1_cm", "min_clearance", "contacts", "reliable_share_ema", "threads")
-STAGE_TIMES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
 
 
 def save_frame_outputs(run_dir: Path, state: MissionState) -> None:
-    """frames.csv and events.log as they stand, and diagnosis.csv when output.diagnose keeps rows."""
+    """frames.csv, profile.csv and events.log as they stand, and diagnosis.csv when output.diagnose
+    keeps rows."""
     write_text(run_dir / run_folder.FRAMES, _csv_text(state.records, FRAME_COLUMNS))
+    write_text(run_dir / run_folder.PROFILE, _csv_text(state.records, PROFILE_COLUMNS))
     write_text(run_dir / run_folder.EVENTS, "".join(e + "\n" for e in state.events))
     if state.diagnosis:
         names = list(dict.fromkeys(k for r in state.diagnosis for k in r))
@@ -48,7 +50,7 @@ def write_metrics(run_dir: Path, cfg: ScenarioConfig, state: MissionState, final
         "recoveries": sum(1 for r in rec if r.get("recovery")),
         "eval": final,
         "mean_times_s": {k: float(np.mean([r[k] for r in rec if k in r]))
-                         for k in STAGE_TIMES if any(k in r for r in rec)},
+                         for k in LOOP_STAGES if any(k in r for r in rec)},
     }
     write_json(run_dir / run_folder.METRICS, metrics)
     return metrics
