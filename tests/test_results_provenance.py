@@ -94,8 +94,11 @@ def test_every_results_readme_states_its_runs_code_and_cpus_as_their_provenance_
     runs = [p.parent for p in _committed("provenance.json")]
     readmes = _committed("README.md")
     checked, errors = 0, []
+    def nearest(run: Path) -> Path:  # the README closest above a run answers for it
+        return max((r for r in readmes if r.parent in run.parents), key=lambda r: len(r.parts))
+
     for readme in readmes:
-        mine = [d for d in runs if readme.parent in d.parents]
+        mine = [d for d in runs if readme.parent in d.parents and nearest(d) == readme]
         if mine:
             checked += 1
             errors += check_readme(readme, mine)
