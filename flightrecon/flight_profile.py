@@ -56,13 +56,13 @@ def summary(rows: list[dict[str, float]], every: int) -> list[dict]:
     stages[1:1] = [(f"map: {stage}", column) for stage, column in MAP_COLUMNS.items()] + [("map: rest", "map_rest")]
     blocks = [("all", rows)] + [(f"{int(rows[i]['frame'])}-{int(rows[min(i + every, len(rows)) - 1]['frame'])}",
                                  rows[i:i + every]) for i in range(0, len(rows), every)]
+    totals = {name: sum(r.get(stage, 0.0) for r in block for stage in LOOP_STAGES) for name, block in blocks}
     table = []
     for label, column in stages:
         entry: dict = {"stage": label, "s_per_frame": sum(r.get(column, 0.0) for r in rows) / len(rows)}
         for name, block in blocks:
-            total = sum(r.get(stage, 0.0) for r in block for stage in LOOP_STAGES)
-            entry[f"share {name}"] = sum(r.get(column, 0.0) for r in block) / max(total, 1e-12)
+            entry[f"share {name}"] = sum(r.get(column, 0.0) for r in block) / max(totals[name], 1e-12)
         table.append(entry)
-    table.append({"stage": "loop total", "s_per_frame": sum(r.get(s, 0.0) for r in rows for s in LOOP_STAGES)
-                  / len(rows), **{f"share {name}": 1.0 for name, _ in blocks}})
+    table.append({"stage": "loop total", "s_per_frame": totals["all"] / len(rows),
+                  **{f"share {name}": 1.0 for name, _ in blocks}})
     return table
