@@ -19,13 +19,14 @@ from flightrecon.experiments.report import (add_equal_time_psnr, collect, rankin
                                              write_tables)
 from flightrecon.experiments.sweep import execute, plan_runs
 from flightrecon.experiments.sweep_run import failure, status
+from flightrecon.sim.safety import MarginRecord
 
 TINY = ["camera.width=80", "camera.height=60", "selector.scoring_width=40", "selector.scoring_height=30",
         "mapper.k_new=5", "mapper.k_replay=2", "budget.frames=3", "budget.initial_views=1",
         "evaluation.views=2", "evaluation.every=1", "metrics.tsdf_voxel=0.05", "metrics.tsdf_truncation=0.15",
         "metrics.sample_points=5000"]
 
-TABLES = [f"{t}.{ext}" for t in ("overall", "paired_gaussmi2d", "per_scene", "efficiency", "ranking")
+TABLES = [f"{t}.{ext}" for t in ("overall", "paired_gaussmi2d", "per_scene", "efficiency", "safety", "ranking")
           for ext in ("md", "csv", "tex")] + ["summary.md"]
 FIGURES = ["quality_over_frames.png", "candidate_time_over_frames.png", "quality_vs_time.png", "novel_views.png"]
 
@@ -221,11 +222,33 @@ def test_ranking_over_frames_compares_the_evaluation_nearest_two_thirds_with_the
 
 
 
-def _table_record(method: str, scene: str, seed: int, psnr: float, code: list[str]) -> dict:
+def _table_record(method: str, scene: str, seed: int, psnr: float, code: list[str],
+                  clearances: tuple[float, ...] = (0.3, 0.2), contacts: int = 0) -> dict:
     return {"dir": f"{scene}/{method}/seed{seed}", "method": method, "scene": scene, "seed": seed, "psnr": psnr,
             "ms_per_candidate": 1.0, "ms_update": 1.0, "model_mb": 1.0, "s_per_frame": 1.0,
             "checkpoints": {89: {"psnr": psnr, "depth_l1_cm": 1.0, "fscore": 0.9}},
-            "code_states": code, "cpus": ["cpu A"]}
+            "code_states": code, "cpus": ["cpu A"], "contacts": contacts,
+            "margin": MarginRecord.of(list(range(len(clearances))), list(clearances), 0.1)}
+
+
+def test_the_safety_table_counts_flights_and_frames_inside_their_margin(tmp_path):
+    """Counted by hand: a run with frames at 0.09 and 0.05 m (two frames inside the 0.1 m margin, the
+    lowest 0.05), one at exactly the margin (kept), one that never flew (NaN) and one with a contact."""
+    recs = [_table_record("gaussmi2d", "a", 0, 20.0, ["c1"], (0.3, 0.09, float("nan"), 0.05)),
+            _table_record("gaussmi2d", "b", 0, 20.0, ["c1"], (0.1, 0.4)),
+            _table_record("random", "a", 0, 20.0, ["c1"], (float("nan"),)),
+            _table_record("random", "b", 0, 20.0, ["c1"], (0.25,), contacts=2)]
+    write_tables(recs, tmp_path)
+    rows = {r["Method"]: r for r in _rows(tmp_path / "safety.csv")}
+    assert rows["gaussmi2d"] == {"Method": "gaussmi2d", "Runs": "2", "Runs below margin": "1",
+                                 "Frames below margin": "2", "Lowest clearance [m]": "0.050", "Runs with contacts": "0"}
+    assert rows["random"] == {"Method": "random", "Runs": "2", "Runs below margin": "0",
+                              "Frames below margin": "0", "Lowest clearance [m]": "0.250", "Runs with contacts": "1"}
+    assert "- safety margin: 1 of 4 finished run(s) went inside it, 1 touched the scene" in (
+        tmp_path / "summary.md").read_text()
+    first = recs[0]["margin"]
+    assert (first.breach_frames, first.lowest, first.lowest_frame) == ((1, 3), 0.05, 3)
+    assert "came within 0.050 m of the scene (frame 3)" in first.warning() and recs[1]["margin"].warning() == ""
 
 
 def test_overall_intervals_take_the_scene_as_the_unit_when_seeds_are_correlated(tmp_path):

@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_active(cfg: ScenarioConfig | None, out: Path, progress: bool, args: argparse.Namespace) -> int:
-    from flightrecon.mission import Mission
+    from flightrecon.mission import Mission, outputs
 
     mission = Mission.resume(out, progress=progress) if cfg is None else Mission(cfg, out, progress=progress)
     mission.live_viewer = args.rerun
@@ -78,11 +78,19 @@ def _run_active(cfg: ScenarioConfig | None, out: Path, progress: bool, args: arg
         save_map(mission.mapper.map, out / "map_3dgs.ply", for_3dgs=True)
     print(f"{m['frames']} frames, {m['splats']} splats ({m['map_mb']:.1f} MB); {_views(m['eval'])}: "
           f"{summary_line(m['eval'])}; flew {m['flight_distance_m']:.1f} m, {m['recoveries']} recoveries, "
-          f"{m['contacts']} contacts -> {out}")
+          f"{m['contacts']} contacts, lowest clearance {_clearance(m)} -> {out}")
+    margin = outputs.margin_record(mission.cfg, mission.state.records)
+    if not margin.kept:
+        print(f"{margin.warning()} (frames.csv, min_clearance)", file=sys.stderr)
     if m["contacts"]:
         print(contact_warning(m["contacts"], f"frames {m['contact_frames']}, listed in {out / 'events.log'}"),
               file=sys.stderr)
     return 0
+
+
+def _clearance(m: dict) -> str:
+    low = m["min_clearance_m"]
+    return "n/a" if low is None else f"{low:.3f} m (margin {m['safety_margin_m']:g} m)"
 
 
 def _views(ev: dict) -> str:

@@ -10,7 +10,9 @@ over the frame budget, and `psnr_equal_time`, PSNR at the mission time the quick
 the scene needed for the whole budget),
 `per_scene` (PSNR, D-L1, F-score per method and scene, mean and interval over seeds),
 `efficiency` (per-candidate evaluation time, selector update time, model size), `ranking` (methods ranked at each in-flight
-evaluation over the runs every method finished), and `summary.md` (what is compared, the run counts,
+evaluation over the runs every method finished), `safety` (per method: flights that went inside their own
+planner.safety_margin after take-off, in how many frames, the lowest clearance, flights with
+contacts), and `summary.md` (what is compared, the run counts,
 and whether the ranking at 2/3 of the budget equals the final one).
 Per-candidate time = total scoring time / total feasible candidates scored, from frames.csv
 (t_score, n_feasible) over the steps that scored more than one candidate.
@@ -38,8 +40,10 @@ import numpy as np
 from flightrecon import provenance, run_folder
 from flightrecon.active.registry import proposes_own_candidates, role_of
 from flightrecon.evaluation.intervals import Interval, mean_interval, paired_difference
+from flightrecon.config import PlannerConfig, read_toml
 from flightrecon.fileio import atomic_path, write_text
 from flightrecon.metric_defs import METRICS, mean_defined, select
+from flightrecon.sim.safety import MarginRecord
 
 # the metrics of each table and figure; labels, units, directions and decimals are metric_defs'
 OVERALL = select("psnr", "psnr_covered", "covered_share", "ssim", "ssim_covered", "lpips", "depth_l1_cm",
@@ -87,6 +91,7 @@ def collect(run_dirs: list[Path]) -> list[dict]:
         for m in SNAPSHOT:
             series[f"eval_{m.key}"] = _snapshot_series(over, len(rows), ev, m.key)
         recs.append({
+            "margin": _margin_record(d, rows), "contacts": met.get("contacts", 0),
             "dir": d, "scene": d.parent.parent.name, "method": met["method"], "seed": met["seed"], **ev,
             "code_states": provenance.code_states(d), "cpus": provenance.cpus(d),
             "ms_per_candidate": 1000 * sum(t for t, _ in scored) / n_cand if n_cand else math.nan,
@@ -97,6 +102,13 @@ def collect(run_dirs: list[Path]) -> list[dict]:
         })
     add_equal_time_psnr(recs)
     return recs
+
+
+def _margin_record(run_dir: Path, rows: list[dict]) -> MarginRecord:
+    """The run's lowest clearances against the safety margin it flew with (its config.toml)."""
+    planner = read_toml(run_dir / run_folder.CONFIG, "run config").get("planner", {})
+    margin = float(planner.get("safety_margin", PlannerConfig.safety_margin))
+    return MarginRecord.of([int(r["frame"]) for r in rows], [_num(r.get("min_clearance")) for r in rows], margin)
 
 
 def psnr_auc(eval_psnr: np.ndarray) -> float:
@@ -315,6 +327,7 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
     paths += _write_table(out, "efficiency", ["Method", "Per-candidate [ms]", "Selector update [ms]",
                                               "Model [MB]", "Wall time per frame [s]"], rows,
                           f"Efficiency (mean over the runs of {note}; on the CPUs summary.md lists)")
+    paths += _write_safety_table(recs, out, note)
     check = ranking_over_frames(recs)
     if check:
         paths += _write_table(out, "ranking", ["Metric", "Frames", "Ranking (best first, mean)"], check.rows,
@@ -322,6 +335,22 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
                               f"every method finished; {code}")
     paths.append(_write_summary(out, recs, check, failed or {}))
     return paths
+
+
+def _write_safety_table(recs: list[dict], out: Path, note: str) -> list[Path]:
+    """Per method: how many flights went inside their own safety margin (frames.csv, take-off
+    excluded), in how many frames, how close the closest came, and how many touched the scene."""
+    rows = []
+    for m in _methods(recs):
+        mine = [r for r in recs if r["method"] == m]
+        lows = [r["margin"].lowest for r in mine if not math.isnan(r["margin"].lowest)]
+        rows.append([m, str(len(mine)), str(sum(not r["margin"].kept for r in mine)),
+                     str(sum(len(r["margin"].breach_frames) for r in mine)),
+                     _fmt(min(lows), 3) if lows else "n/a", str(sum(r["contacts"] > 0 for r in mine))])
+    return _write_table(out, "safety", ["Method", "Runs", "Runs below margin", "Frames below margin",
+                                        "Lowest clearance [m]", "Runs with contacts"], rows,
+                        f"Safety: flights that went inside their planner.safety_margin after take-off, and "
+                        f"contacts with the scene ({note})")
 
 
 def _write_summary(out: Path, recs: list[dict], check: RankingCheck | None, failed: dict[str, str]) -> Path:
@@ -346,6 +375,9 @@ def _write_summary(out: Path, recs: list[dict], check: RankingCheck | None, fail
     for m in _methods(recs):
         mine = [r for r in recs if r["method"] == m]
         lines.append(f"- {m}: {len(mine)} finished run(s) on {len({r['scene'] for r in mine})} scene(s)")
+    breached = [r for r in recs if not r["margin"].kept]
+    lines.append(f"- safety margin: {len(breached)} of {len(recs)} finished run(s) went inside it, "
+                 f"{sum(r['contacts'] > 0 for r in recs)} touched the scene (safety.md)")
     lines.append("")
     if failed:
         lines.append(f"{len(failed)} flight(s) stopped with an error and are in no table:")

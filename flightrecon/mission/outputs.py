@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from pathlib import Path
 
 import numpy as np
@@ -17,10 +18,11 @@ from flightrecon.config import ScenarioConfig
 from flightrecon.fileio import write_json, write_text
 from flightrecon.flight_profile import LOOP_STAGES, PROFILE_COLUMNS
 from flightrecon.mission.state import MissionState
+from flightrecon.sim.safety import MarginRecord
 
 FRAME_COLUMNS = ("frame", "sim_time", "t_capture", "t_map", "t_select_update", "t_plan", "t_score",
-                 "t_fly_sim", "n_splats", "n_candidates", "n_feasible", "n_ompl", "chosen_score",
-                 "flight_time", "flight_distance", "recovery", "frame_psnr", "frame_depth_l1_cm",
+                 "t_rehearse", "t_fly_sim", "n_splats", "n_candidates", "n_feasible", "n_ompl",
+                 "n_tracking_rejected", "chosen_score", "flight_time", "flight_distance", "recovery", "frame_psnr", "frame_depth_l1_cm",
                  "eval_psnr", "eval_depth_l1_cm", "min_clearance", "contacts", "reliable_share_ema", "threads")
 
 
@@ -47,6 +49,7 @@ def write_metrics(run_dir: Path, cfg: ScenarioConfig, state: MissionState, final
         "flight_distance_m": state.flight_distance, "sim_time_s": sim_time,
         "wall_time_s": state.wall_time, "contacts": contacts,
         "contact_frames": _contact_frames(rec),
+        **margin_record(cfg, rec).to_dict(),
         "recoveries": sum(1 for r in rec if r.get("recovery")),
         "eval": final,
         "mean_times_s": {k: float(np.mean([r[k] for r in rec if k in r]))
@@ -54,6 +57,12 @@ def write_metrics(run_dir: Path, cfg: ScenarioConfig, state: MissionState, final
     }
     write_json(run_dir / run_folder.METRICS, metrics)
     return metrics
+
+
+def margin_record(cfg: ScenarioConfig, rows: list[dict]) -> MarginRecord:
+    """Where the flight of `rows` (frames.csv's) kept planner.safety_margin and where it did not."""
+    return MarginRecord.of([r["frame"] for r in rows], [r.get("min_clearance", math.nan) for r in rows],
+                           cfg.planner.safety_margin)
 
 
 def plain(row: dict) -> dict:

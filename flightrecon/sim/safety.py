@@ -7,6 +7,11 @@ Contacts are MuJoCo's own contacts between a drone geom and any other geom: one 
 starts touching, not one per step; a flight told to stop on contact (sim.on_contact) raises
 `FlightContact` at the first one. Divergence (a non-finite state or a tilt beyond the limit)
 raises `FlightDiverged`, which carries the log recorded so far.
+
+The safety margin is a contract: the planner keeps drone.body_radius + planner.safety_margin from
+the scene, so a flight whose clearance falls below planner.safety_margin broke it. `MarginRecord`
+says where (frames.csv's per-frame lowest clearance, take-off excluded), for metrics.json, the
+flight's summary and a sweep's report alike.
 """
 
 from __future__ import annotations
@@ -38,6 +43,43 @@ class ClearanceMonitor:
 
     def __call__(self, position: np.ndarray) -> float:
         return float(self.surface.distance(np.asarray(position, float).reshape(1, 3))[0]) - self.body_radius
+
+
+@dataclass(frozen=True)
+class MarginRecord:
+    """A flight's lowest clearance after take-off and the frames whose flight went below the margin."""
+
+    margin: float  # planner.safety_margin (m)
+    lowest: float  # m; NaN when no frame flew
+    lowest_frame: int | None
+    breach_frames: tuple[int, ...]
+
+    @classmethod
+    def of(cls, frames: list[int], min_clearance: list[float], margin: float) -> "MarginRecord":
+        """From frames.csv's `frame` and `min_clearance` columns (NaN: the frame did not fly)."""
+        c = np.asarray(min_clearance, float)
+        flown = np.flatnonzero(np.isfinite(c))
+        if not len(flown):
+            return cls(float(margin), math.nan, None, ())
+        worst = int(flown[np.argmin(c[flown])])
+        breach = tuple(int(frames[i]) for i in flown if c[i] < margin)
+        return cls(float(margin), float(c[worst]), int(frames[worst]), breach)
+
+    @property
+    def kept(self) -> bool:
+        return not self.breach_frames
+
+    def to_dict(self) -> dict:
+        return {"safety_margin_m": self.margin, "min_clearance_m": None if math.isnan(self.lowest) else self.lowest,
+                "min_clearance_frame": self.lowest_frame, "margin_breach_frames": list(self.breach_frames)}
+
+    def warning(self) -> str:
+        """The line that keeps a flight inside its own margin from reading like a safe one ("" when kept)."""
+        if self.kept:
+            return ""
+        n = len(self.breach_frames)
+        return (f"WARNING: the drone came within {self.lowest:.3f} m of the scene (frame {self.lowest_frame}), inside "
+                f"its planner.safety_margin of {self.margin:g} m, in {n} frame(s): {list(self.breach_frames)}")
 
 
 class FlightContact(FlightReconError):
