@@ -199,3 +199,36 @@ def test_bad_frames_are_data_errors_and_nan_depth_is_invalid():
     ref.integrate(half, K, T)
     np.testing.assert_array_equal(occ.observed, ref.observed)
     np.testing.assert_array_equal(occ.surface, ref.surface)
+
+
+def _wall_view(free_range: float = np.inf, camera_x: float = 0.0) -> OccupancyMap:
+    """A 160x120, 90 deg camera at (camera_x, 0, 0) looking along +z at a wall 3 m away (constant z-depth)."""
+    K = intrinsics(160, 120, 90.0)  # f = 80 px, principal point (80, 60)
+    occ = OccupancyMap(np.array([[-3.0, -3.0, -1.0], [3.0, 3.0, 4.0]]), H, free_range=free_range)
+    T = np.eye(4)
+    T[0, 3] = camera_x
+    occ.integrate(np.full((120, 160), 3.0, np.float32), K, T)
+    return occ
+
+
+def test_a_voxel_reaching_past_the_image_border_is_not_carved():
+    """By hand: the voxel centered at (0.325, 0.025, 0.325) spans 12.3 px (f = 80) at its depth. Seen
+    from x = -0.012 its center projects 3 px beyond the right border (column 163), from x = +0.012 3 px
+    inside it (157): either way part of it lies outside the field of view, where no ray looked (a table
+    top just below the image's edge was carved so), and it stays unknown. The voxel at the middle of
+    the image, (0.025, 0.025, 0.325), whose footprint's rays all pass to the wall, is free."""
+    edge, middle = np.array([[0.325, 0.025, 0.325]]), np.array([[0.025, 0.025, 0.325]])
+    for camera_x, column in ((-0.012, 163.0), (0.012, 157.0)):
+        assert 80.0 * (edge[0, 0] - camera_x) / edge[0, 2] + 80.0 == pytest.approx(column, abs=0.1)
+        occ = _wall_view(camera_x=camera_x)
+        assert occ.state(edge)[0] == UNKNOWN and occ.state(middle)[0] == FREE
+
+
+def test_rays_carve_only_within_the_free_range_and_surfaces_are_marked_at_any():
+    """A voxel 2.5 m out on the optical axis, 0.5 m before the wall: free when rays may carve to any
+    range, unknown within a 2 m free range; the wall's voxels at 3 m are occupied either way."""
+    far, wall = np.array([[0.0, 0.0, 2.5]]), np.array([[0.0, 0.0, 3.0 + H / 2]])
+    unlimited, limited = _wall_view(), _wall_view(free_range=2.0)
+    assert unlimited.state(far)[0] == FREE and limited.state(far)[0] == UNKNOWN
+    assert unlimited.state(wall)[0] == OCCUPIED and limited.state(wall)[0] == OCCUPIED
+    assert limited.state(np.array([[0.0, 0.0, 1.5]]))[0] == FREE

@@ -11,17 +11,23 @@ At thin edges and grazing angles (a table top's rim seen from above) the ray thr
 center passes while the surface crosses a corner of the voxel; asking only that ray, and weighing
 evidence as OctoMap-style log-odds (hit +0.85, pass -0.4), carved such rims after three passes and
 let the planner route the drone's body into them. Spurious hits (from pose noise) therefore stay
-as obstacles: the safe side. Invalid depth (0: nothing within range) carves nothing. Voxels never
+as obstacles: the safe side. A pixel without a return (0) carves nothing unless the caller says
+it means "nothing within range" (`no_return`: the simulated camera's far plane). Voxels never
 touched stay unknown; planning never flies through the unseen: its body keeps clear of unknown
 space, and its safety margin keeps clear of occupied space (`distance_field(unknown_offset)`).
 
 What no rule here can catch: a surface that no pixel's ray hits. A thin plate seen almost edge-on
 (a lamp's top disc a few centimeters below the camera) can project to less than a pixel row, fall
-between pixel centers and leave every ray of its voxels passing; those voxels are carved. Only
-the safety margin, or a later view from another height, covers it.
+between pixel centers and leave every ray of its voxels passing. Its projected height shrinks with
+range, so rays carve only within `free_range` of the camera (planner.free_range); beyond it space
+stays unknown until a nearer view. A voxel whose footprint reaches past the image border is not
+carved either: the part outside was not looked at (a table top just below the bottom edge of the
+image, a few centimetres from the camera, was carved that way).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from scipy import ndimage
@@ -32,15 +38,16 @@ from flightrecon.planning.distance_field import DistanceField, grid_for_bounds
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 # half-widths (px) a voxel's footprint is rounded up to; the last caps it (a voxel at the lens covers the image)
-FOOTPRINT_PX = np.array([1, 2, 3, 4, 6, 8, 11, 16, 23, 32, 45, 64])
+FOOTPRINT_PX = np.array([1, 2, 3, 4, 5, 6, 7, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, 64])
 
 
 class OccupancyMap:
     """Voxel grid over a workspace box: surface (ever hit), observed (hit or passed), else unknown;
     `blocked()` is everything not known to be free."""
 
-    def __init__(self, bounds: np.ndarray, voxel_size: float = 0.05):
+    def __init__(self, bounds: np.ndarray, voxel_size: float = 0.05, free_range: float = np.inf):
         self.voxel_size = float(voxel_size)
+        self.free_range = float(free_range)  # m from the camera within which rays carve (surfaces: any range)
         self.origin, self.shape = grid_for_bounds(bounds, voxel_size)
         self.surface = np.zeros(self.shape, bool)
         self.observed = np.zeros(self.shape, bool)
@@ -60,11 +67,14 @@ class OccupancyMap:
             raise ValueError(f"occupancy state of grid {surface.shape} does not fit this map's grid {self.shape}")
         self.surface, self.observed = surface, observed
 
-    def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> None:
-        """Add one z-depth frame (meters, 0 invalid) seen from camera pose T_wc (OpenCV axes).
+    def integrate(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, no_return: float = 0.0) -> None:
+        """Add one z-depth frame (meters) seen from camera pose T_wc (OpenCV axes).
 
-        Non-finite depths count as invalid; a frame of the wrong shape or a non-finite pose is a
-        DataError."""
+        A pixel of depth 0 had no return: by default no evidence (a real sensor's dropout on dark or
+        glassy surfaces). `no_return` > 0 reads it as no surface up to that depth instead: a simulated
+        camera, which returns 0 only where nothing lies within its far plane (a scan's holes, its
+        missing ceiling). Non-finite depths are no evidence; a frame of the wrong shape or a
+        non-finite pose is a DataError."""
         depth = np.asarray(depth, np.float32)
         if depth.ndim != 2 or np.asarray(K).shape != (3, 3) or np.asarray(T_wc).shape != (4, 4):
             raise DataError(f"occupancy update needs an HxW depth, a 3x3 K and a 4x4 pose; got shapes "
@@ -78,11 +88,12 @@ class OccupancyMap:
             idx = self._index(pts)
             ok = self._inside(idx)
             hit[idx[ok, 0], idx[ok, 1], idx[ok, 2]] = True
-        max_d = float(depth[valid].max()) if valid.any() else 0.0
+        evidence = np.where(valid, depth, np.where(depth == 0, np.float32(no_return), 0.0)).astype(np.float32)
+        max_d = float(min(evidence.max(), self.free_range)) if evidence.size else 0.0
         if max_d <= 0:
             self._apply(hit, None)
             return
-        # Voxels in the view frustum up to the farthest measurement.
+        # Voxels in the view frustum up to the farthest measurement (or the free range, if nearer: none beyond it is carved).
         H, W = depth.shape
         corners = np.array([[0, 0], [W, 0], [0, H], [W, H]], float)
         rays = np.concatenate([(corners - K[:2, 2]) / np.diag(K)[:2], np.ones((4, 1))], axis=1)
@@ -106,21 +117,18 @@ class OccupancyMap:
         with np.errstate(divide="ignore", invalid="ignore"):
             u = K[0, 0] * pc[0] / z + K[0, 2]
             v = K[1, 1] * pc[1] / z + K[1, 2]
-            # A voxel whose center lies just outside the image is still crossed by the border rays
-            # (e.g. at the seams of views a quarter turn apart): half a voxel of slack, in pixels.
-            slack = np.float32(0.5 * h * K[0, 0]) / z
-        in_view = (z > 0) & (u > -slack) & (u < W + slack) & (v > -slack) & (v < H + slack)
+        in_view = (z > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
         sel = np.nonzero(in_view)
         ui = np.clip(u[sel], 0, W - 1).astype(np.int64)
         vi = np.clip(v[sel], 0, H - 1).astype(np.int64)
         zs = z[sel]
         # The rays passed this voxel if every pixel its footprint covers measured a surface more than
         # a voxel behind its center: the pixel at its center alone misses a rim crossing its corner.
+        # A footprint that leaves the image has no evidence for its outer part: nothing is carved.
         # Half-widths rounded up to a few sizes (a wider square is the safe side): one filter per size.
-        need = np.float32(0.5 * np.sqrt(3) * h * K[0, 0]) / zs
-        radius = FOOTPRINT_PX[np.minimum(np.searchsorted(FOOTPRINT_PX, need), len(FOOTPRINT_PX) - 1)]
-        d = _footprint_min_depth(np.where(valid, depth, 0.0).astype(np.float32), ui, vi, radius)
-        passed = (d > 0) & (zs < d - h)
+        radius = footprint_px(h, K[0, 0], zs)
+        d = _footprint_min_depth(evidence, ui, vi, radius)
+        passed = (d > 0) & (zs < d - h) & (zs <= self.free_range)
         free = np.zeros(self.shape, bool)
         free[sel[0][passed] + lo[0], sel[1][passed] + lo[1], sel[2][passed] + lo[2]] = True
         self._apply(hit, free)
@@ -137,6 +145,33 @@ class OccupancyMap:
         axes = [self.origin[a] + (np.arange(lo[a], hi[a]) + 0.5) * h - c[a] for a in range(3)]
         gx, gy, gz = np.meshgrid(*axes, indexing="ij")
         inside = gx**2 + gy**2 + gz**2 <= radius**2
+        box = tuple(slice(a, b) for a, b in zip(lo, hi))
+        self.observed[box] |= inside
+
+    def mark_blind_free(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int, radius: float,
+                        z_range: tuple[float, float]) -> None:
+        """Declare free the unknown voxels within `radius` of the camera that lie above or below its
+        vertical field of view, or reach past it, at any heading (the blind cones overhead and
+        underfoot that no turn in place can look into), and between the heights `z_range`. Voxels
+        with evidence keep it."""
+        h = self.voxel_size
+        c = np.asarray(T_wc, float)[:3, 3]
+        lo = np.maximum(np.floor((c - radius - self.origin) / h).astype(int), 0)
+        hi = np.minimum(np.ceil((c + radius - self.origin) / h).astype(int) + 1, self.shape)
+        if np.any(hi <= lo):
+            return
+        axes = [self.origin[a] + (np.arange(lo[a], hi[a]) + 0.5) * h for a in range(3)]
+        gx, gy, gz = np.meshgrid(*axes, indexing="ij")
+        dx, dy, dz = gx - c[0], gy - c[1], gz - c[2]
+        dist = np.sqrt(dx**2 + dy**2 + dz**2)
+        axis = float(np.arcsin(np.clip(T_wc[2, 2], -1.0, 1.0)))  # the optical axis's elevation
+        # Blind: a turn in place does not reliably carve it. Seen at the image's side edge (where a
+        # turn's views meet, and the vertical view is narrowest), its footprint (`integrate`) reaches
+        # past the image's top or bottom edge.
+        side = math.cos(math.atan2(0.5 * width, K[0, 0]))
+        z_c = np.maximum(np.hypot(dx, dy) * side, h)
+        rows = K[1, 1] * np.abs(np.tan(np.arctan2(dz, z_c / side) - axis)) / side + footprint_px(h, K[1, 1], z_c)
+        inside = (dist <= radius) & (rows > 0.5 * height) & (gz >= z_range[0]) & (gz <= z_range[1])
         box = tuple(slice(a, b) for a, b in zip(lo, hi))
         self.observed[box] |= inside
 
@@ -200,12 +235,20 @@ class OccupancyMap:
             self.observed |= passed
 
 
+def footprint_px(voxel: float, focal: float, depth: np.ndarray) -> np.ndarray:
+    """Half-width (px) of the square of pixels that must all pass a voxel at z-depth `depth` for
+    it to be carved: its projected half-diagonal, rounded up to FOOTPRINT_PX."""
+    need = np.float32(0.5 * np.sqrt(3) * voxel * focal) / np.asarray(depth, np.float32)
+    return FOOTPRINT_PX[np.minimum(np.searchsorted(FOOTPRINT_PX, need), len(FOOTPRINT_PX) - 1)]
+
+
 def _footprint_min_depth(depth: np.ndarray, u: np.ndarray, v: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """Smallest depth in the square of half-width `radius` px around each pixel (u, v); 0 (invalid)
-    wins, so a footprint touching a pixel without depth carves nothing."""
+    wins, and pixels beyond the image border count as 0: a footprint touching a pixel without depth,
+    or reaching past the image, carves nothing."""
     out = np.empty(len(u), np.float32)
     for r in np.unique(radius):
         m = radius == r
-        lowest = ndimage.minimum_filter(depth, size=2 * int(r) + 1, mode="nearest")
+        lowest = ndimage.minimum_filter(depth, size=2 * int(r) + 1, mode="constant", cval=0.0)
         out[m] = lowest[v[m], u[m]]
     return out
