@@ -128,7 +128,12 @@ class ControlConfig:
 @dataclass(frozen=True)
 class PlannerConfig:
     voxel_size: float = option(0.05, 0.01, 0.5, doc="occupancy voxel (m)")
-    safety_margin: float = option(0.1, 0.0, 1.0, doc="clearance kept beyond the drone's body radius (m)")
+    safety_margin: float = option(0.1, 0.0, 1.0, doc="clearance kept beyond the drone's body radius (m): the "
+                                  "flight's contract, counted in metrics.json and a sweep's safety table")
+    free_range: float = option(2.0, 0.1, 100.0, doc="m from the camera within which its rays may carve free space: "
+                               "farther, a thin level surface seen at a grazing angle falls between pixel rows (a 4 "
+                               "mm plate 0.18 m below a 160x120 camera at 2.8 m), so its voxels stay unknown until "
+                               "seen nearer; surfaces are marked at any range")
     max_vel: float = option(1.0, 0.05, 10.0, doc="m/s per axis")
     max_acc: float = option(2.0, 0.05, 20.0, doc="m/s^2 per axis")
     max_jerk: float = option(8.0, 0.1, 200.0, doc="m/s^3 per axis")
@@ -143,8 +148,14 @@ class PlannerConfig:
     ompl_iterations: int = option(300, 1, 10_000_000, doc="RRT-Connect iterations per query (typical detours "
                               "need under 50); an iteration cap keeps seeded plans independent of machine load")
     ompl_time_limit: float = option(1.0, 0.001, 60.0, doc="s; safety cap per OMPL query")
-    hover_free_radius: float = option(0.6, 0.0, 5.0, doc="m; never-seen space this close to where the drone "
-                                  "hovered is assumed free (the camera's blind cones above and below)")
+    hover_free_radius: float = option(0.6, 0.0, 5.0, doc="m; unknown space this close to the camera and beyond its "
+                                  "vertical field of view (the blind cones overhead and underfoot, which no turn in "
+                                  "place can see into), between the workspace's floor and top, is assumed free; "
+                                  "0: nothing beyond the body. Space at the camera's own heights is never assumed: "
+                                  "it is looked at (a turn) before it is entered")
+    look_hz: float = option(4.0, 0.0, 100.0, doc="depth frames per simulated second the camera streams into the "
+                            "occupancy map while flying, take-off included (not into the splat map): space is "
+                            "seen before it is entered; 0: only the captures")
     max_height: float = option(2.7, 0.5, 100.0, doc="m above the detected floor: the top of the flight workspace "
                            "where the scene has no ceiling (open scans whose walls end low)")
 

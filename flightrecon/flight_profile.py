@@ -1,7 +1,7 @@
 """Where a flight's time goes, frame by frame: `profile.csv` in every run folder, and its summary.
 
 The loop times its own stages per frame (capture, mapping, selector update, planning, scoring,
-simulated flight: frames.csv); the mapping's time is split further by flightrecon.profiling's stage
+rehearsing the chosen flight, simulated flight: frames.csv); the mapping's time is split further by flightrecon.profiling's stage
 timers (forward and backward blend, SSIM, optimizer step, densify, ...). Those cost a few thousand
 clock reads per frame against seconds of mapping, so every flight keeps them. `flightrecon profile
 RUN` prints each stage's share of the loop's time over blocks of frames.
@@ -15,7 +15,7 @@ from pathlib import Path
 from flightrecon import profiling, run_folder
 from flightrecon.errors import DataError
 
-LOOP_STAGES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_fly_sim")
+LOOP_STAGES = ("t_capture", "t_map", "t_select_update", "t_plan", "t_score", "t_rehearse", "t_fly_sim")
 
 
 def _column(stage: str) -> str:

@@ -131,6 +131,31 @@ def test_a_flight_that_stops_on_contact_ends_at_the_first_one():
     assert f.log.slice_from(len(f.log)).events == []
 
 
+def test_a_rehearsed_flight_is_the_flight_that_follows_and_leaves_no_trace():
+    """The oracle is the flight itself: rehearsing a fast diagonal move (its tracking error is what
+    the rehearsal is for) returns the positions that flying it then passes, bit for bit; the log,
+    the time and the state are as before the rehearsal. A rehearsal into the wall reports the path
+    through the contact without raising, though the flight stops on contact, and leaves no event."""
+    f = flight()
+    f.stop_on_contact = True
+    f.hover(0.5)
+    before = (len(f.log), f.time, f.state.position.copy())
+    move = MinJerkMove.within_limits([0, 0, 1.0], [1.0, 0.6, 1.3], 0.0, 0.8, 1.0, 2.0, 8.0, 1.5, 3.0)
+    rehearsed = f.rehearse(move)
+    assert (len(f.log), f.time) == before[:2] and np.array_equal(f.state.position, before[2])
+    f.fly(move)
+    f.wait_until_arrived()
+    flown = f.log.positions[before[0]:]
+    np.testing.assert_array_equal(rehearsed, flown)
+    lag = np.linalg.norm(flown - f.log.reference_positions[before[0]:], axis=1).max()
+    assert lag > 0.005  # the drone does lag its reference: what a check of the reference alone misses
+    into_wall = MinJerkMove.within_limits(flown[-1], [WALL_X + 0.5, 0.6, 1.3], 0.8, 0.8, 0.3, 1.0, 4.0, 1.0, 1.0)
+    n = len(f.log)
+    path = f.rehearse(into_wall)
+    assert path is None or path[:, 0].max() > WALL_X - f.cfg.drone.body_radius - 0.02
+    assert len(f.log) == n and f.log.events == [] and f.stop_on_contact
+
+
 @pytest.mark.parametrize("upset", ["roll", "nan_state", "nan_motor"])
 def test_divergence_stops_with_a_message_and_keeps_the_log(upset):
     f = flight()

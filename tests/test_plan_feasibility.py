@@ -246,7 +246,9 @@ def test_planning_on_the_online_map_rejects_unknown_and_occupied_targets():
     planner = Planner(cfg, WORKSPACE, start_position=START)
     w, h = 120, 90
     K = intrinsics(w, h, 90.0)
-    for yaw in (np.pi / 2, -np.pi / 2, np.pi):  # look left, right and back; never at the wall ahead
+    # a full turn, as the camera streams it turning in place (views overlap: a voxel on the edge of one
+    # image is inside the next); behind the wall stays unseen, and the last view looks back
+    for yaw in np.pi * np.array([0.0, 0.25, 0.5, 0.75, -0.25, -0.5, -0.75, 1.0]):
         T = camera_pose(START, yaw)
         depth = _raycast_depth(mesh, K, T, w, h)
         planner.integrate(depth, K, T, body_position=START)
@@ -355,3 +357,20 @@ def test_searched_paths_timed_rest_to_rest_always_pass_the_check(setup):
         (why,), _, _ = check_trajectories([tr], planner.field, planner.settings, START)
         assert why == "feasible"
     assert found >= 4
+
+
+def test_a_flown_path_is_held_to_the_clearance_a_planned_one_keeps(setup):
+    """The wall's face is at x = 0.45 (by construction); the requirement is body radius + safety
+    margin (0.35 m). A densely sampled path that stops 0.36 m from the face keeps it; one that
+    overshoots to 0.33 m (the controller's lag, 3 cm) does not; and a start already below the
+    requirement may leave along a path that does not come closer."""
+    mesh, cfg, planner = setup
+    need = cfg.required_clearance
+    face = 0.45
+    approach = np.linspace([-0.5, 0.0, 1.2], [face - need - 0.01, 0.0, 1.2], 400)
+    overshoot = np.vstack([approach, np.linspace(approach[-1], [face - need + 0.02, 0.0, 1.2], 50)])
+    assert planner.keeps_clearance(approach, approach[0])
+    assert not planner.keeps_clearance(overshoot, approach[0])
+    close = np.array([face - need + 0.02, 0.0, 1.2])  # 0.33 m from the face
+    leaving = np.linspace(close, [-0.5, 0.0, 1.2], 300)
+    assert planner.keeps_clearance(leaving, close) and not planner.keeps_clearance(leaving[::-1], leaving[-1])

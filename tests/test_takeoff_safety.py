@@ -164,22 +164,23 @@ def test_a_flight_from_a_blocked_spawn_takes_off_from_the_safe_point(room, tmp_p
     assert all("cannot leave its take-off point" not in r.getMessage() for r in caplog.records)
 
 
-def _bar_behind(room: Scene, tmp_path: Path) -> tuple[Scene, list[str]]:
-    """A thin bar across the room 0.3 m behind the take-off point, where the camera has not looked
-    when the only candidate (0.3 m backwards) is flown: the planner takes the unseen space near
-    the drone as free (planner.hover_free_radius), so the drone flies into the bar."""
+def _bar_overhead(room: Scene, tmp_path: Path) -> tuple[Scene, list[str]]:
+    """A thin bar across the room 0.47 m above the take-off point, in the camera's blind cone
+    overhead, where the only candidate (0.45 m up) flies: the planner takes unknown space there as
+    free out to planner.hover_free_radius (1 m here), so the drone flies into the bar (the risk that
+    assumption takes, and which the flight then reports)."""
     lo, hi = room.bounds
     center = (lo + hi) / 2
-    scene = furnished(room, [([center[0] - 0.3, center[1], 1.2], [0.04, 3.0, 0.04])], meta={})
-    library = tmp_path / "backwards.toml"
-    library.write_text("[[candidate]]\nforward = -0.3\n")
-    return scene, ["planner.safety_margin=0.0", f"planner.library={library}", "budget.frames=3",
+    scene = furnished(room, [([center[0], center[1], 1.2 + 0.47], [0.04, 3.0, 0.04])], meta={})
+    library = tmp_path / "up.toml"
+    library.write_text("[[candidate]]\nup = 0.45\n")
+    return scene, [f"planner.library={library}", "planner.hover_free_radius=1.0", "budget.frames=3",
                    "budget.initial_views=1", "planner.max_vel=0.3"]
 
 
 @pytest.mark.slow
 def test_a_flight_that_touches_the_scene_stops_naming_the_frame(room, tmp_path, capsys):
-    scene, sets = _bar_behind(room, tmp_path)
+    scene, sets = _bar_overhead(room, tmp_path)
     rc, out, err, run = _fly(tmp_path, capsys, scene, "run", *sets)
     assert rc == 2
     assert "flightrecon: error: frame 0: the flight stopped: the drone touched the scene: t=" in err, err
@@ -192,13 +193,20 @@ def test_a_flight_that_touches_the_scene_stops_naming_the_frame(room, tmp_path, 
 
 @pytest.mark.slow
 def test_a_flight_told_to_continue_counts_its_contacts_loudly(room, tmp_path, capsys):
-    scene, sets = _bar_behind(room, tmp_path)
+    scene, sets = _bar_overhead(room, tmp_path)
     rc, out, err, run = _fly(tmp_path, capsys, scene, "run", *sets, "sim.on_contact=continue")
     assert rc == 0, err
     metrics = json.loads((run / "metrics.json").read_text())
     n = metrics["contacts"]
     assert n >= 1 and metrics["contact_frames"][0] == 0
-    assert f"{n} contacts -> {run}" in out
+    low = metrics["min_clearance_m"]
+    assert f"{n} contacts, lowest clearance {low:.3f} m (margin 0.1 m) -> {run}" in out
     assert f"WARNING: the drone touched the scene {n} time(s) (frames {metrics['contact_frames']}" in err
+    # the margin's own record: the frames inside it, the lowest clearance, said on stderr
+    with open(run / "frames.csv") as f:
+        rows = list(csv.DictReader(f))
+    flown = [(int(r["frame"]), float(r["min_clearance"])) for r in rows if r["min_clearance"] not in ("", "nan")]
+    assert low == pytest.approx(min(c for _, c in flown), abs=1e-5) and low < 0 and metrics["margin_breach_frames"] == [k for k, c in flown if c < 0.1]
+    assert f"WARNING: the drone came within {low:.3f} m of the scene" in err and "planner.safety_margin" in err
     assert "frame 0: contact t=" in (run / "events.log").read_text()
     assert not (run / "failed.txt").exists()

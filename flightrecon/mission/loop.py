@@ -51,6 +51,7 @@ from flightrecon.sim.quadrotor import camera_offset
 from flightrecon.sim.safety import ClearanceMonitor, FlightContact
 
 log = logging.getLogger(__name__)
+REHEARSALS = 10  # best candidates whose flights are rehearsed before the step falls back to its way out
 
 
 class Mission:
@@ -63,6 +64,8 @@ class Mission:
         self.rig = rig = build_rig(cfg)
         self.flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(rig.scene.trimesh, cfg.drone.body_radius))
         self.planner = Planner(cfg, rig.workspace, rig.scene.trimesh, rig.start)
+        if cfg.planner.look_hz > 0:
+            self.flight.watch(self._look, 1.0 / cfg.planner.look_hz)
         self.mapper = OnlineMapper(cfg.mapper, near=cfg.camera.near, far=cfg.camera.far, seed=cfg.seed)
         self.free_cores = threads.FreeCores()
         self.selector = make_selector(cfg)
@@ -161,6 +164,11 @@ class Mission:
             self._event(self.rig.takeoff.note, logging.WARNING)
         launch.climb(self.flight, self.rig.takeoff, self.rig.start)
 
+    def _look(self) -> None:
+        """A depth frame the camera streams in flight, for the occupancy map alone (planner.look_hz)."""
+        _, depth, T_wc, _ = self.flight.capture(self.rig.camera)
+        self.planner.integrate(depth, self.rig.K, T_wc, body_position=self.flight.state.position)
+
     # ------------------------------------------------------------------ one step
     def _step(self, last: bool) -> dict:
         row: dict = {"frame": self.state.frame}
@@ -230,24 +238,40 @@ class Mission:
         row["n_candidates"], row["n_feasible"] = len(results), len(feasible)
         row["n_ompl"] = sum(r.used_ompl for r in results)
         t = time.perf_counter()
-        chosen, scores = None, None
-        if len(feasible) == 1:
-            chosen, row["chosen_score"] = feasible[0], math.nan
-        elif feasible:
+        ranked, scores, order = feasible, None, None
+        if len(feasible) > 1:
             scores = self.score_candidates(feasible)
-            best = int(np.argmax(scores))
-            chosen, row["chosen_score"] = feasible[best], float(scores[best])
-            if self.state.coverage is not None:
-                s = self.flight.state
-                self.state.diagnosis[-1].update(diagnosis.choice_columns(
-                    self.selector, self.view, s.position, float(s.yaw), chosen, self.candidate_poses([chosen])[0],
-                    scores))
+            order = np.argsort(-np.asarray(scores), kind="stable")
+            ranked = [feasible[i] for i in order]
         row["t_score"] = time.perf_counter() - t
+        t = time.perf_counter()
+        chosen, row["n_tracking_rejected"] = self._first_tracked(ranked, start)
+        row["t_rehearse"] = time.perf_counter() - t
+        row["chosen_score"] = float(scores[order[row["n_tracking_rejected"]]]) if chosen and order is not None else math.nan
+        if chosen is not None and scores is not None and self.state.coverage is not None:
+            s = self.flight.state
+            self.state.diagnosis[-1].update(diagnosis.choice_columns(
+                self.selector, self.view, s.position, float(s.yaw), chosen, self.candidate_poses([chosen])[0], scores))
         row["recovery"] = ""
         if chosen is None:
             chosen = self._recover(start, results, row)
+            if chosen is not None and self._first_tracked([chosen], start)[0] is None:
+                self._event(f"frame {self.state.frame}: the way out ({row['recovery']}) would not keep the clearance "
+                            "when flown: hovering instead")
+                chosen = None
         self.recorder.candidates(results, feasible, scores, chosen)
         return chosen
+
+    def _first_tracked(self, ranked: list[CandidateResult], start: FlatState) -> tuple[CandidateResult | None, int]:
+        """The first of `ranked` (best first, at most REHEARSALS of them) whose flight, rehearsed with
+        the controller, keeps the clearance its planned trajectory keeps; and how many were passed
+        over. The planner checks the reference; the drone lags it at corners and overshoots when it
+        stops (up to about 5 cm), which took flights inside their safety margin."""
+        for k, candidate in enumerate(ranked[:REHEARSALS]):
+            path = self.flight.rehearse(candidate.trajectory)
+            if path is not None and self.planner.keeps_clearance(path, start.position):
+                return candidate, k
+        return None, min(len(ranked), REHEARSALS)
 
     def _fly(self, chosen: CandidateResult | None, row: dict) -> None:
         """Fly to the chosen view and settle (hover a second without one); the flight's columns of the row."""

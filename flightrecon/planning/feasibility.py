@@ -85,6 +85,21 @@ class PlanningTimes:
     n_ompl: int = 0
 
 
+def required_at(points: np.ndarray, field: DistanceField, settings: PlanningSettings,
+                start: np.ndarray | None = None) -> np.ndarray:
+    """Clearance required at each point (N, 3) of a path from `start`: the settings' everywhere,
+    except near a start that is itself below the search's clearance, where it is the start's own
+    clearance less half a voxel (the drone may leave, not come closer)."""
+    req = np.full(len(points), settings.required_clearance)
+    if start is not None:
+        d0 = float(field.distance(np.asarray(start, float)[None])[0])
+        if d0 < settings.required_clearance + search_margin(field):
+            radius = max(settings.required_clearance - d0, 0.0) + field.voxel_size
+            near = np.linalg.norm(points - start, axis=1) < radius
+            req[near] = d0 - field.voxel_size / 2
+    return req
+
+
 def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settings: PlanningSettings,
                        start: np.ndarray | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
     """Dense check of many trajectories at once -> (reason per trajectory, min clearance, length).
@@ -119,13 +134,7 @@ def check_trajectories(trajs: list[JerkTrajectory], field: DistanceField, settin
     tilt = np.arctan2(np.linalg.norm(acc[:, :2], axis=1), thrust_z)
     over |= (thrust_z <= 0) | (tilt > settings.max_tilt)
     bad_limits = np.bincount(who, weights=over.astype(float), minlength=n) > 0
-    req = np.full(len(pos), settings.required_clearance)
-    if start is not None:
-        d0 = float(field.distance(np.asarray(start, float)[None])[0])
-        if d0 < settings.required_clearance + search_margin(field):
-            radius = max(settings.required_clearance - d0, 0.0) + field.voxel_size
-            near = np.linalg.norm(pos[:, :3] - start, axis=1) < radius
-            req[near] = d0 - field.voxel_size / 2
+    req = required_at(pos[:, :3], field, settings, start)
     short = clear < req + math.sqrt(3) * max_step[who] / 2
     bad_clear = np.bincount(who, weights=short.astype(float), minlength=n) > 0
     reasons = []
@@ -153,7 +162,8 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
     times = times if times is not None else PlanningTimes()
     results = [CandidateResult(np.asarray(positions[i], float), float(yaws[i]), "") for i in range(len(positions))]
     d_target = field.distance(positions)
-    todo = _screen_targets(results, in_bounds(positions, workspace), target_state, d_target, settings)
+    need = required_at(positions, field, settings, np.asarray(start.position, float))
+    todo = _screen_targets(results, in_bounds(positions, workspace), target_state, d_target < need)
     t0 = time.perf_counter()
     retry = _straight_legs(start, results, todo, field, settings)
     times.straight = time.perf_counter() - t0
@@ -165,8 +175,9 @@ def check_candidates(start: FlatState, positions: np.ndarray, yaws: np.ndarray, 
 
 
 def _screen_targets(results: list[CandidateResult], inside: np.ndarray, target_state: np.ndarray,
-                    d_target: np.ndarray, settings: PlanningSettings) -> list[int]:
-    """Give a reason to each candidate whose target itself is unusable; returns the others' indices."""
+                    too_close: np.ndarray) -> list[int]:
+    """Give a reason to each candidate whose target itself is unusable (`too_close`: below the
+    clearance required there, which near a tight start is the start's own); returns the others' indices."""
     todo = []
     for i, r in enumerate(results):
         if not inside[i]:
@@ -175,7 +186,7 @@ def _screen_targets(results: list[CandidateResult], inside: np.ndarray, target_s
             r.reason = "in_obstacle"
         elif target_state[i] == UNKNOWN:
             r.reason = "unknown_space"
-        elif d_target[i] < settings.required_clearance:
+        elif too_close[i]:
             r.reason = "clearance"
         else:
             todo.append(i)
@@ -296,7 +307,7 @@ class Planner:
             self._field = DistanceField.from_mesh(scene_mesh, cfg.planner.voxel_size, self.map_bounds,
                                                   free_seeds=seeds, signed=False)
         else:
-            self.occupancy = OccupancyMap(self.map_bounds, cfg.planner.voxel_size)
+            self.occupancy = OccupancyMap(self.map_bounds, cfg.planner.voxel_size, cfg.planner.free_range)
             if start_position is not None:
                 self.mark_body_free(start_position)
 
@@ -318,19 +329,22 @@ class Planner:
         """Add a depth frame to the online map (ignored when planning on the ground truth)."""
         if self.occupancy is None:
             return
-        self.occupancy.integrate(depth, K, T_wc)
+        self.occupancy.integrate(depth, K, T_wc, no_return=self.cfg.camera.far)  # the simulated camera's 0: nothing in range
         if body_position is not None:
             self.mark_body_free(body_position)
+        r = self.cfg.planner.hover_free_radius
+        if r > 0:
+            body = self.cfg.drone.body_radius  # between the floor and the ceiling the drone's body may reach
+            heights = (self.workspace[0, 2] - body, self.workspace[1, 2] + body)
+            self.occupancy.mark_blind_free(T_wc, K, depth.shape[1], depth.shape[0], r, heights)
         self._field = None
 
     def mark_body_free(self, position: np.ndarray) -> None:
-        """Assume the never-seen space within planner.hover_free_radius of where the drone hovers is
-        free. Its body proves the inner part; without the rest, the camera's blind cones above and
-        below (a level camera sees +-37 deg vertically) would pin it in place, as its body may not
-        come near unknown space. What the camera has seen is never overridden."""
+        """The never-seen space the drone's body fills where it is: free (its body proves it). What
+        the camera has seen is never overridden."""
         if self.occupancy is None:
             return
-        self.occupancy.mark_free_sphere(position, self.cfg.planner.hover_free_radius)
+        self.occupancy.mark_free_sphere(position, self.cfg.drone.body_radius)
         self._field = None
 
     @property
@@ -339,6 +353,17 @@ class Planner:
         if self._field is None:
             self._field = self.occupancy.distance_field(unknown_offset=self.cfg.planner.safety_margin)
         return self._field
+
+    def keeps_clearance(self, path: np.ndarray, start: np.ndarray) -> bool:
+        """Whether a densely sampled path from `start` (the flight `Flight.rehearse` predicts, a
+        control period between samples) keeps the clearance a planned trajectory must keep on the
+        planning field, with the same Lipschitz margin for its sample spacing."""
+        path = np.asarray(path, float).reshape(-1, 3)
+        if not len(path):
+            return True
+        step = float(np.linalg.norm(np.diff(path, axis=0), axis=1).max()) if len(path) > 1 else 0.0
+        req = required_at(path, self.field, self.settings, np.asarray(start, float))
+        return bool(np.all(self.field.distance(path) >= req + math.sqrt(3) * step / 2))
 
     def target_states(self, positions: np.ndarray) -> np.ndarray:
         if self.occupancy is not None:

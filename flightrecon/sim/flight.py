@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -94,6 +95,11 @@ class FlightLog:
         self.events = [ContactEvent(**{**e, "position": tuple(e["position"])}) for e in state["events"]]
         self.notes = list(state["notes"])
 
+    def truncate(self, rows: int, events: int, notes: int) -> None:
+        """Drop what was appended after the log held `rows` rows, `events` events and `notes` notes."""
+        del self._rows[rows:], self.events[events:], self.notes[notes:]
+        self._cache = None
+
     def slice_from(self, start: int) -> "FlightLog":
         """The rows from `start` on, with the contacts that began in them (a step's contacts carry
         the time after it, which is the next row's)."""
@@ -129,6 +135,9 @@ class Flight:
         self.log = FlightLog()
         self.last_reference: FlatState | None = None
         self._rng = np.random.default_rng([cfg.seed, 7919])
+        self._watcher: Callable[[], None] | None = None  # `watch`: called every `_watch_period` s of flight
+        self._watch_period = 0.0
+        self._next_watch = math.inf
         self._bad_warnings_seen = self._bad_state_warnings()
 
     def _bad_state_warnings(self) -> int:
@@ -178,6 +187,15 @@ class Flight:
             self.log.events.extend(events)
             if self.stop_on_contact:
                 raise FlightContact(f"the drone touched the scene: {events[0].describe()}", events[0])
+        if self._watcher is not None and self.data.time >= self._next_watch - 1e-9:
+            self._next_watch += self._watch_period
+            self._watcher()
+
+    def watch(self, callback: Callable[[], None] | None, period: float) -> None:
+        """Call `callback` every `period` s of simulated time while flying (never while rehearsing):
+        what the camera streams between captures. None: stop."""
+        self._watcher, self._watch_period = callback, float(period)
+        self._next_watch = self.time + self._watch_period if callback is not None else math.inf
 
     def _diverged(self, t: float, reason: str) -> None:
         msg = f"flight diverged at t={t:.3f}s: {reason}; the log keeps {len(self.log)} steps"
@@ -204,6 +222,32 @@ class Flight:
                                          p.max_vel, p.max_acc, p.max_jerk, math.radians(p.max_yaw_rate_deg),
                                          math.radians(p.max_yaw_acc_deg))
         return self.fly(move)
+
+    def rehearse(self, trajectory: Trajectory) -> np.ndarray | None:
+        """Positions (N, 3) the drone would pass tracking `trajectory` and settling at its end (`fly`,
+        then `wait_until_arrived`), simulated from the current state and then undone; None if that
+        flight diverges. The tracking error shows here, which the planned reference does not; the
+        simulation is deterministic, so the flight that follows the rehearsal is the one rehearsed."""
+        kind = mujoco.mjtState.mjSTATE_INTEGRATION
+        sim = np.empty(mujoco.mj_stateSize(self.model, kind))
+        mujoco.mj_getState(self.model, self.data, sim, kind)
+        kept = (self.last_reference, self._rng.bit_generator.state, set(self.contacts.active), self.stop_on_contact,
+                self._watcher)
+        sizes = (len(self.log), len(self.log.events), len(self.log.notes))
+        self.stop_on_contact, self._watcher = False, None
+        try:
+            self.fly(trajectory)
+            self.wait_until_arrived()
+            return self.log.positions[sizes[0]:].copy()
+        except FlightDiverged:
+            return None
+        finally:
+            mujoco.mj_setState(self.model, self.data, sim, kind)
+            mujoco.mj_forward(self.model, self.data)
+            self.last_reference, rng, self.contacts.active, self.stop_on_contact, self._watcher = kept
+            self._rng.bit_generator.state = rng
+            self.log.truncate(*sizes)
+            self._bad_warnings_seen = self._bad_state_warnings()
 
     def arrived(self, target: FlatState) -> bool:
         """Position, yaw and speed inside the control tolerances right now."""
@@ -245,7 +289,8 @@ class Flight:
         mujoco.mj_getState(self.model, self.data, sim, kind)
         ref = None if self.last_reference is None else dataclasses.asdict(self.last_reference)
         return {"sim": sim, "last_reference": ref, "rng": self._rng.bit_generator.state,
-                "log": self.log.get_state(), "contacts": sorted(list(pair) for pair in self.contacts.active)}
+                "log": self.log.get_state(), "contacts": sorted(list(pair) for pair in self.contacts.active),
+                "next_watch": self._next_watch}
 
     def set_state(self, state: dict) -> None:
         """Restore a `get_state()` snapshot into this flight's (identically built) world."""
@@ -257,6 +302,7 @@ class Flight:
         self.log = FlightLog()
         self.log.set_state(state["log"])
         self.contacts.active = {(int(a), int(b)) for a, b in state["contacts"]}
+        self._next_watch = float(state.get("next_watch", math.inf))
 
     # ------------------------------------------------------------------ camera
     def sync(self) -> None:
