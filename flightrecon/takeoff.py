@@ -11,7 +11,9 @@ drone can reach what it is to map. Near the floor the floor itself may come clos
 resting on it): there the requirement is the height over the floor less FLOOR_TOLERANCE, so only
 something else near the drone counts. The hover point keeps PLANNER_SLACK planner voxels more: the
 planner measures clearance on its voxel map, which may read that much below the truth, and a drone
-it judges too close cannot even turn in place ("cannot leave its take-off point").
+it judges too close cannot even turn in place ("cannot leave its take-off point"). The drone rests
+on ground level within LEVEL_DEG (rays cast down under its body): on a slope it slides into the
+scene before it is airborne, which is how a scan flown tilted shows first.
 
 When the default is not safe, the nearest safe hover point of a grid over the flight workspace is
 used, and the reason is said; when none is, one error names the keys that change the answer.
@@ -25,6 +27,7 @@ import numpy as np
 
 from flightrecon.config import ScenarioConfig
 from flightrecon.errors import SceneError
+from flightrecon.open3d_import import open3d_module
 from flightrecon.scene.free_space import FreeSpace, room_for_takeoff
 from flightrecon.scene.surface_distance import SurfaceDistance
 from flightrecon.scene.types import Scene
@@ -34,6 +37,7 @@ CLIMB_STEP = 0.01  # m between checked points of a climb
 FLOOR_TOLERANCE = 0.05  # m the floor may lie above its detected height (scan noise, rugs)
 PLANNER_SLACK = 1.5  # planner voxels (planner.voxel_size) the hover point keeps beyond the required clearance
 CHUNK = 256  # candidates whose climbs are checked in one query
+LEVEL_DEG = 10.0  # the ground a drone rests on before take-off is level within this
 KEYS = ("Change sim.takeoff_height, drone.body_radius, planner.safety_margin, planner.voxel_size or "
         "planner.max_height, or check scene.up_axis (or scene.up_vector) and scene.unit_scale (`flightrecon scene "
         "info` shows the floor, ceiling and workspace)")
@@ -62,6 +66,7 @@ class _Checker:
         self.free = free
         self.floor_z = floor_z
         self.rest_z = floor_z + 0.5 * cfg.drone.body_radius  # the drone's center, resting on the floor
+        self.body_radius = cfg.drone.body_radius
         self.required = cfg.required_clearance  # on the climb
         self.at_hover = self.required + PLANNER_SLACK * cfg.planner.voxel_size
 
@@ -79,8 +84,28 @@ class _Checker:
         cols = np.arange(len(hovers))
         return short[worst, cols], z[worst, cols], dist[worst, cols]
 
+    def ground_tilt(self, hovers: np.ndarray) -> np.ndarray:
+        """Per hover point (N, 3), the steepest tilt (deg) of the surface the drone rests on before
+        its climb: rays cast straight down from the hover point and from four points half a body
+        radius around it (a ray through a hole in a scan's floor hits nothing: no slope there)."""
+        hovers = np.atleast_2d(hovers)
+        r = 0.5 * self.body_radius
+        offsets = np.array([[0.0, 0.0, 0.0], [r, 0.0, 0.0], [-r, 0.0, 0.0], [0.0, r, 0.0], [0.0, -r, 0.0]])
+        origins = (hovers[:, None, :] + offsets[None]).reshape(-1, 3)
+        down = np.broadcast_to([0.0, 0.0, -1.0], origins.shape)
+        o3d = open3d_module()
+        rays = o3d.core.Tensor(np.ascontiguousarray(np.concatenate([origins, down], 1), np.float32))
+        hit = self.surface.raycasting_scene().cast_rays(rays)
+        up = np.abs(hit["primitive_normals"].numpy()[:, 2].astype(np.float64))
+        tilt = np.where(np.isfinite(hit["t_hit"].numpy()), np.degrees(np.arccos(np.clip(up, 0.0, 1.0))), 0.0)
+        return tilt.reshape(len(hovers), len(offsets)).max(axis=1)
+
     def why_not(self, hover: np.ndarray) -> str:
         """Why `hover` is not a safe take-off, or "" when it is."""
+        tilt = float(self.ground_tilt(hover)[0])
+        if tilt > LEVEL_DEG:
+            return (f"stands over ground tilted {tilt:.0f} deg where the drone would rest before its climb (a "
+                    f"take-off needs ground level within {LEVEL_DEG:g} deg: a scan whose up is wrong is tilted)")
         clear = float(self.surface.distance(hover[None])[0])
         if not clear >= self.at_hover:
             return (f"has {clear:.2f} m to the scene, less than the {self.at_hover:.2f} m it needs "
@@ -150,6 +175,7 @@ def _nearest_safe(check: _Checker, candidates: np.ndarray) -> np.ndarray | None:
         return None
     keep = check.free.contains(candidates)
     keep[keep] = check.surface.distance(candidates[keep]) >= check.at_hover
+    keep[keep] = check.ground_tilt(candidates[keep]) <= LEVEL_DEG
     ok = candidates[keep]
     for start in range(0, len(ok), CHUNK):
         chunk = ok[start:start + CHUNK]

@@ -33,6 +33,7 @@ UNIT_GUESSES = (0.001, 0.01, 0.0254)  # millimetres, centimetres, inches
 log = logging.getLogger(__name__)
 
 # y-up file -> z-up world: +90 deg about x, so file +y becomes world +z and file +z becomes world -y.
+FILE_Z_TOLERANCE_DEG = 10.0  # an uncertain estimate this close to the file's z axis vouches for it
 _Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
 
@@ -41,7 +42,8 @@ def load_scene(path: str | os.PathLike, unit_scale: float = 1.0, up_axis: str = 
     """Read a scene file (or a folder holding mesh.ply, Replica's layout) into the world frame.
 
     `up_axis`: "z", "y" or "auto" (estimated; an uncertain estimate keeps the file's axes, with a
-    warning). `up_vector` (3 numbers, file coordinates; None or empty: unused) overrides it.
+    warning, when it lies within FILE_Z_TOLERANCE_DEG of the file's z axis, and is a SceneError
+    otherwise: neither can then be trusted to put the floor level). `up_vector` (3 numbers, file coordinates; None or empty: unused) overrides it.
     `rotation_deg`: an extra rotation about world x, then y, then z (degrees) after the up axis.
     What was applied, and the estimate, are in `scene.meta["up_axis"]`."""
     path = Path(path).expanduser()
@@ -163,8 +165,18 @@ def _orientation(scene: Scene, path: Path, unit_scale: float, up_axis: str, up_v
         else:
             up, R = np.array([0.0, 0.0, 1.0]), np.eye(3)
             e = estimate.up
+            off = math.degrees(math.acos(min(1.0, abs(float(e[2])))))
+            if off > FILE_Z_TOLERANCE_DEG:  # never fly a scan tilted: neither the estimate nor the file's z is trusted
+                raise SceneError(
+                    f"scene {path}: cannot tell which way is up. scene.up_axis = 'auto' estimates up = "
+                    f"({e[0]:.3f}, {e[1]:.3f}, {e[2]:.3f}) in the file's coordinates but is uncertain "
+                    f"({estimate.reason}), and the file's z axis is {off:.0f} deg from it, so its floor would not be "
+                    f"level either. Set scene.up_vector = [{e[0]:.3f}, {e[1]:.3f}, {e[2]:.3f}] to use the estimate, "
+                    "or scene.up_axis = \"y\" or \"z\" if the file is stored so (`flightrecon scene info FILE "
+                    "--up-vector X Y Z` shows the floor and workspace it gives)")
             log.warning("scene %s: scene.up_axis = 'auto' is uncertain (%s; estimate (%.3f, %.3f, %.3f)); keeping "
-                        "the file's z axis as up: set scene.up_axis or scene.up_vector", path, estimate.reason, *e)
+                        "the file's z axis as up, which it agrees with: set scene.up_axis or scene.up_vector",
+                        path, estimate.reason, *e)
     else:
         mode = up_axis
         up = np.array([0.0, 1.0, 0.0]) if up_axis == "y" else np.array([0.0, 0.0, 1.0])
