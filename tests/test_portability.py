@@ -5,6 +5,7 @@ CPU runs, where the -ffast-math build once turned fresh splats' quaternions into
 from __future__ import annotations
 
 import csv
+import json
 import os
 import subprocess
 import sys
@@ -48,6 +49,9 @@ def _fly_demo(out: Path, env: dict, frames: int = 6) -> None:
         rows = list(csv.DictReader(f))
     assert len(rows) == frames
     assert float(rows[-2]["flight_distance"]) > 0.1, "the drone never left its take-off point"
+    metrics = json.loads((out / "metrics.json").read_text())  # the margin it promises is kept
+    assert metrics["contacts"] == 0 and metrics["margin_breach_frames"] == []
+    assert metrics["min_clearance_m"] >= metrics["safety_margin_m"] == 0.1
 
 
 @pytest.mark.slow
