@@ -76,7 +76,8 @@ def bake_scene(scene: Scene, cache_dir: str = "", collision_voxel: float = 0.05)
 
 
 def add_scene(spec: mujoco.MjSpec, scene: Scene, baked: BakedScene, ambient: float = 0.3) -> None:
-    """Add the scene's textured visual mesh (no collisions) and its collision boxes (not drawn)."""
+    """Add the scene's textured visual mesh (no collisions, drawn from both sides) and its collision
+    boxes (not drawn)."""
     atlas = baked.atlas
     h, w = atlas.image.shape[:2]
     tex = spec.add_texture(name=ATLAS_TEXTURE, type=mujoco.mjtTexture.mjTEXTURE_2D, width=w, height=h,
@@ -89,9 +90,14 @@ def add_scene(spec: mujoco.MjSpec, scene: Scene, baked: BakedScene, ambient: flo
     mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
     mesh.maxhullvert = 4  # never collides: skip computing a useful hull
     mesh.uservert = np.asarray(scene.vertices, np.float32).ravel()
-    mesh.userface = np.asarray(scene.faces, np.int32).ravel()
+    # Every face both ways round: OpenGL culls a face seen from behind, and a scan's surfaces are
+    # single sheets (a table top scanned from above, seen from below) that the collision boxes and the
+    # true clearance hold either way; drawn one way only, the camera saw through what the drone hit.
+    faces = np.asarray(scene.faces, np.int32)
+    mesh.userface = np.concatenate([faces, faces[:, ::-1]]).ravel()
     mesh.usertexcoord = atlas.texcoord.ravel()
-    mesh.userfacetexcoord = atlas.face_texcoord.ravel()
+    corners = np.asarray(atlas.face_texcoord, np.int32)
+    mesh.userfacetexcoord = np.concatenate([corners, corners[:, ::-1]]).ravel()
     spec.worldbody.add_geom(name=SCENE_GEOM, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=SCENE_MESH,
                             material="scene_material", contype=0, conaffinity=0, group=VISUAL_GROUP)
     for i, (cx, cy, cz, hx, hy, hz) in enumerate(baked.boxes):
