@@ -150,9 +150,10 @@ class PlannerConfig:
     ompl_time_limit: float = option(1.0, 0.001, 60.0, doc="s; safety cap per OMPL query")
     hover_free_radius: float = option(0.6, 0.0, 5.0, doc="m; unknown space this close to the camera and beyond its "
                                   "vertical field of view (the blind cones overhead and underfoot, which no turn in "
-                                  "place can see into), between the workspace's floor and top, is assumed free; "
-                                  "0: nothing beyond the body. Space at the camera's own heights is never assumed: "
-                                  "it is looked at (a turn) before it is entered")
+                                  "place can see into) is assumed free, within body radius + safety margin of the "
+                                  "camera's height (a level move needs it; a climb or descent waits until the cone "
+                                  "is seen from further off) and inside the workspace; 0: nothing beyond the body. "
+                                  "Space within the field of view is never assumed: it is looked at (a turn) first")
     look_hz: float = option(4.0, 0.0, 100.0, doc="depth frames per simulated second the camera streams into the "
                             "occupancy map while flying, take-off included (not into the splat map): space is "
                             "seen before it is entered; 0: only the captures")

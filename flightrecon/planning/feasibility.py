@@ -334,8 +334,13 @@ class Planner:
             self.mark_body_free(body_position)
         r = self.cfg.planner.hover_free_radius
         if r > 0:
-            body = self.cfg.drone.body_radius  # between the floor and the ceiling the drone's body may reach
-            heights = (self.workspace[0, 2] - body, self.workspace[1, 2] + body)
+            # only the band of heights the drone's own clearance spans at the camera's height, and never
+            # below the floor or above the top its body may reach: a level flight needs it; a climb or
+            # a descent into the cones waits until they have been seen from further off (a table top
+            # 0.48 m under the drone was flown into when the whole cone was assumed free)
+            body, band = self.cfg.drone.body_radius, self.settings.required_clearance
+            z = float(T_wc[2, 3])
+            heights = (max(self.workspace[0, 2] - body, z - band), min(self.workspace[1, 2] + body, z + band))
             self.occupancy.mark_blind_free(T_wc, K, depth.shape[1], depth.shape[0], r, heights)
         self._field = None
 
