@@ -58,7 +58,8 @@ def test_short_flight_improves_and_writes_outputs(tmp_path, capsys):
     assert metrics["contacts"] == 0
     # the margin is kept, and metrics.json says so from frames.csv
     flown = [float(r["min_clearance"]) for r in rows if r["min_clearance"] not in ("", "nan")]
-    assert metrics["min_clearance_m"] == pytest.approx(min(flown), abs=1e-5) >= cfg.planner.safety_margin
+    assert metrics["min_clearance_m"] == pytest.approx(min(flown), abs=1e-5)
+    assert metrics["min_clearance_m"] >= cfg.planner.safety_margin
     assert metrics["margin_breach_frames"] == [] and metrics["safety_margin_m"] == cfg.planner.safety_margin
     assert int(rows[-1]["n_splats"]) == metrics["splats"] == len(load_map(tmp_path / "map.ply"))
     selected = [r for r in rows[2:-1] if r["n_feasible"] and int(r["n_feasible"]) > 1]

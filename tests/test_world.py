@@ -127,7 +127,8 @@ def test_world_without_drone_exposes_model_data_spec_scene(tmp_path):
     world = build_world(scene, _cfg(tmp_path), with_drone=False)
     m = world.model
     assert world.scene is scene and isinstance(world.spec, mujoco.MjSpec)
-    assert m.nbody == 1 and m.nmeshvert == len(scene.vertices) and m.nmeshface == len(scene.faces)
+    assert m.nbody == 1 and m.nmeshvert == len(scene.vertices)
+    assert m.nmeshface == 2 * len(scene.faces)  # every face drawn both ways round
     assert len(world.collision_geom_ids) == len(world.baked.boxes) > 0
     assert np.all(m.geom_contype[world.collision_geom_ids] == 1)
     h, w = world.baked.atlas.image.shape[:2]
