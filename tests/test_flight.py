@@ -151,8 +151,11 @@ def test_a_rehearsed_flight_is_the_flight_that_follows_and_leaves_no_trace():
     assert lag > 0.005  # the drone does lag its reference: what a check of the reference alone misses
     into_wall = MinJerkMove.within_limits(flown[-1], [WALL_X + 0.5, 0.6, 1.3], 0.8, 0.8, 0.3, 1.0, 4.0, 1.0, 1.0)
     n = len(f.log)
-    path = f.rehearse(into_wall)
-    assert path is None or path[:, 0].max() > WALL_X - f.cfg.drone.body_radius - 0.02
+    try:
+        path = f.rehearse(into_wall)
+        assert path[:, 0].max() > WALL_X - f.cfg.drone.body_radius - 0.02
+    except FlightDiverged:
+        pass  # a crash may tip the drone over: rehearsed, that is said now, and undone all the same
     assert len(f.log) == n and f.log.events == [] and f.stop_on_contact
 
 

@@ -113,6 +113,8 @@ def test_steps_planned_on_the_online_map_keep_clear_of_the_true_scene():
         _, depth, T_wc, _ = flight.capture(cam)
         planner.integrate(depth, cam.K, T_wc, body_position=flight.state.position)
 
+    flight.watch(capture, 1.0 / cfg.planner.look_hz)  # as the mission: the camera streams depth in flight
+
     def now() -> FlatState:
         s = flight.state
         return FlatState(s.position, s.velocity, np.zeros(3), s.yaw, 0.0)

@@ -100,8 +100,12 @@ def test_mini_sweep_writes_every_table_and_figure_and_skips_finished_runs(tmp_pa
 
 @pytest.mark.slow
 def test_a_failed_flight_is_recorded_reported_and_skipped_until_retried(tmp_path):
-    # a real divergence: a 10 deg tilt limit is crossed by the first accelerating move
-    specs = plan_runs("demo", ["room0"], ["random"], 1, TINY + ["sim.divergence_tilt_deg=10"], str(tmp_path))
+    # a real divergence: a 10 deg tilt limit is crossed by the first accelerating move (0.6 m forward,
+    # the only candidate: at 2 m/s^2 the drone tilts 11.5 deg); its rehearsal already diverges
+    library = tmp_path / "forward.toml"
+    library.write_text("[[candidate]]\nforward = 0.6\n")
+    specs = plan_runs("demo", ["room0"], ["random"], 1, TINY + ["sim.divergence_tilt_deg=10",
+                                                             f"planner.library={library}"], str(tmp_path / "sweep"))
     (run_dir, what), = execute(specs, log=lambda s: None)
     assert what.startswith("failed: flight diverged") and "sim.divergence_tilt_deg" in what
     assert status(specs[0]) == "failed" and failure(specs[0]) == what.removeprefix("failed: ")

@@ -268,8 +268,12 @@ class Mission:
         over. The planner checks the reference; the drone lags it at corners and overshoots when it
         stops (up to about 5 cm), which took flights inside their safety margin."""
         for k, candidate in enumerate(ranked[:REHEARSALS]):
-            path = self.flight.rehearse(candidate.trajectory)
-            if path is not None and self.planner.keeps_clearance(path, start.position):
+            try:
+                path = self.flight.rehearse(candidate.trajectory)
+            except FlightDiverged as exc:
+                raise FlightReconError(f"{exc} (rehearsing frame {self.state.frame}'s flight; run folder "
+                                       f"{self.run_dir} keeps the frames so far)") from None
+            if self.planner.keeps_clearance(path, start.position):
                 return candidate, k
         return None, min(len(ranked), REHEARSALS)
 

@@ -223,11 +223,12 @@ class Flight:
                                          math.radians(p.max_yaw_acc_deg))
         return self.fly(move)
 
-    def rehearse(self, trajectory: Trajectory) -> np.ndarray | None:
+    def rehearse(self, trajectory: Trajectory) -> np.ndarray:
         """Positions (N, 3) the drone would pass tracking `trajectory` and settling at its end (`fly`,
-        then `wait_until_arrived`), simulated from the current state and then undone; None if that
-        flight diverges. The tracking error shows here, which the planned reference does not; the
-        simulation is deterministic, so the flight that follows the rehearsal is the one rehearsed."""
+        then `wait_until_arrived`), simulated from the current state and then undone. The tracking
+        error shows here, which the planned reference does not; the simulation is deterministic, so
+        the flight that follows the rehearsal is the one rehearsed, and one that would diverge raises
+        FlightDiverged now, as flying it would (the state is restored either way)."""
         kind = mujoco.mjtState.mjSTATE_INTEGRATION
         sim = np.empty(mujoco.mj_stateSize(self.model, kind))
         mujoco.mj_getState(self.model, self.data, sim, kind)
@@ -239,8 +240,6 @@ class Flight:
             self.fly(trajectory)
             self.wait_until_arrived()
             return self.log.positions[sizes[0]:].copy()
-        except FlightDiverged:
-            return None
         finally:
             mujoco.mj_setState(self.model, self.data, sim, kind)
             mujoco.mj_forward(self.model, self.data)
