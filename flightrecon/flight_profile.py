@@ -1,9 +1,10 @@
 """Where a flight's time goes, frame by frame: `profile.csv` in every run folder, and its summary.
 
 The loop times its own stages per frame (capture, mapping, selector update, planning, scoring,
-rehearsing the chosen flight, simulated flight: frames.csv); the mapping's time is split further by flightrecon.profiling's stage
-timers (forward and backward blend, SSIM, optimizer step, densify, ...). Those cost a few thousand
-clock reads per frame against seconds of mapping, so every flight keeps them. `flightrecon profile
+rehearsing the chosen flight, simulated flight: frames.csv); the mapping's time is split further by
+flightrecon.profiling's stage timers (forward and backward blend, SSIM, optimizer step, densify,
+...). Those cost a few thousand clock reads per frame against seconds of mapping, so every flight
+keeps them. `flightrecon profile
 RUN` prints each stage's share of the loop's time over blocks of frames.
 """
 

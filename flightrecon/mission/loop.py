@@ -245,9 +245,10 @@ class Mission:
             ranked = [feasible[i] for i in order]
         row["t_score"] = time.perf_counter() - t
         t = time.perf_counter()
-        chosen, row["n_tracking_rejected"] = self._first_tracked(ranked, start)
-        row["t_rehearse"] = time.perf_counter() - t
-        row["chosen_score"] = float(scores[order[row["n_tracking_rejected"]]]) if chosen and order is not None else math.nan
+        chosen, passed_over = self._first_tracked(ranked, start)
+        row["t_rehearse"], row["n_tracking_rejected"] = time.perf_counter() - t, passed_over
+        scored = chosen is not None and order is not None
+        row["chosen_score"] = float(scores[order[passed_over]]) if scored else math.nan
         if chosen is not None and scores is not None and self.state.coverage is not None:
             s = self.flight.state
             self.state.diagnosis[-1].update(diagnosis.choice_columns(

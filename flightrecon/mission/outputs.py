@@ -22,8 +22,9 @@ from flightrecon.sim.safety import MarginRecord
 
 FRAME_COLUMNS = ("frame", "sim_time", "t_capture", "t_map", "t_select_update", "t_plan", "t_score",
                  "t_rehearse", "t_fly_sim", "n_splats", "n_candidates", "n_feasible", "n_ompl",
-                 "n_tracking_rejected", "chosen_score", "flight_time", "flight_distance", "recovery", "frame_psnr", "frame_depth_l1_cm",
-                 "eval_psnr", "eval_depth_l1_cm", "min_clearance", "contacts", "reliable_share_ema", "threads")
+                 "n_tracking_rejected", "chosen_score", "flight_time", "flight_distance", "recovery",
+                 "frame_psnr", "frame_depth_l1_cm", "eval_psnr", "eval_depth_l1_cm", "min_clearance", "contacts",
+                 "reliable_share_ema", "threads")
 
 
 def save_frame_outputs(run_dir: Path, state: MissionState) -> None:

@@ -329,7 +329,8 @@ class Planner:
         """Add a depth frame to the online map (ignored when planning on the ground truth)."""
         if self.occupancy is None:
             return
-        self.occupancy.integrate(depth, K, T_wc, no_return=self.cfg.camera.far)  # the simulated camera's 0: nothing in range
+        # the simulated camera returns 0 only where nothing lies within its far plane
+        self.occupancy.integrate(depth, K, T_wc, no_return=self.cfg.camera.far)
         if body_position is not None:
             self.mark_body_free(body_position)
         r = self.cfg.planner.hover_free_radius

@@ -93,7 +93,8 @@ class OccupancyMap:
         if max_d <= 0:
             self._apply(hit, None)
             return
-        # Voxels in the view frustum up to the farthest measurement (or the free range, if nearer: none beyond it is carved).
+        # Voxels in the view frustum up to the farthest measurement, or the free range if nearer
+        # (none beyond it is carved).
         H, W = depth.shape
         corners = np.array([[0, 0], [W, 0], [0, H], [W, H]], float)
         rays = np.concatenate([(corners - K[:2, 2]) / np.diag(K)[:2], np.ones((4, 1))], axis=1)
@@ -136,17 +137,10 @@ class OccupancyMap:
     def mark_free_sphere(self, center: np.ndarray, radius: float) -> None:
         """Declare the unknown voxels within `radius` of `center` free (the volume the drone occupies:
         its own body proves it empty). Voxels with evidence keep it."""
-        h = self.voxel_size
-        c = np.asarray(center, float)
-        lo = np.maximum(np.floor((c - radius - self.origin) / h).astype(int), 0)
-        hi = np.minimum(np.ceil((c + radius - self.origin) / h).astype(int) + 1, self.shape)
-        if np.any(hi <= lo):
-            return
-        axes = [self.origin[a] + (np.arange(lo[a], hi[a]) + 0.5) * h - c[a] for a in range(3)]
-        gx, gy, gz = np.meshgrid(*axes, indexing="ij")
-        inside = gx**2 + gy**2 + gz**2 <= radius**2
-        box = tuple(slice(a, b) for a, b in zip(lo, hi))
-        self.observed[box] |= inside
+        near = self._around(center, radius)
+        if near is not None:
+            box, dx, dy, dz = near
+            self.observed[box] |= dx**2 + dy**2 + dz**2 <= radius**2
 
     def mark_blind_free(self, T_wc: np.ndarray, K: np.ndarray, width: int, height: int, radius: float,
                         z_range: tuple[float, float]) -> None:
@@ -156,13 +150,10 @@ class OccupancyMap:
         with evidence keep it."""
         h = self.voxel_size
         c = np.asarray(T_wc, float)[:3, 3]
-        lo = np.maximum(np.floor((c - radius - self.origin) / h).astype(int), 0)
-        hi = np.minimum(np.ceil((c + radius - self.origin) / h).astype(int) + 1, self.shape)
-        if np.any(hi <= lo):
+        near = self._around(c, radius)
+        if near is None:
             return
-        axes = [self.origin[a] + (np.arange(lo[a], hi[a]) + 0.5) * h for a in range(3)]
-        gx, gy, gz = np.meshgrid(*axes, indexing="ij")
-        dx, dy, dz = gx - c[0], gy - c[1], gz - c[2]
+        box, dx, dy, dz = near
         dist = np.sqrt(dx**2 + dy**2 + dz**2)
         axis = float(np.arcsin(np.clip(T_wc[2, 2], -1.0, 1.0)))  # the optical axis's elevation
         # Blind: a turn in place does not reliably carve it. Seen at the image's side edge (where a
@@ -171,9 +162,21 @@ class OccupancyMap:
         side = math.cos(math.atan2(0.5 * width, K[0, 0]))
         z_c = np.maximum(np.hypot(dx, dy) * side, h)
         rows = K[1, 1] * np.abs(np.tan(np.arctan2(dz, z_c / side) - axis)) / side + footprint_px(h, K[1, 1], z_c)
-        inside = (dist <= radius) & (rows > 0.5 * height) & (gz >= z_range[0]) & (gz <= z_range[1])
-        box = tuple(slice(a, b) for a, b in zip(lo, hi))
-        self.observed[box] |= inside
+        gz = c[2] + dz
+        self.observed[box] |= (dist <= radius) & (rows > 0.5 * height) & (gz >= z_range[0]) & (gz <= z_range[1])
+
+    def _around(self, center: np.ndarray, radius: float) -> tuple[tuple[slice, ...], np.ndarray, np.ndarray,
+                                                                   np.ndarray] | None:
+        """The grid's box of voxels within `radius` of `center` along each axis, and their centers'
+        offsets from it (dx, dy, dz over the box); None when the box misses the grid."""
+        h = self.voxel_size
+        c = np.asarray(center, float)
+        lo = np.maximum(np.floor((c - radius - self.origin) / h).astype(int), 0)
+        hi = np.minimum(np.ceil((c + radius - self.origin) / h).astype(int) + 1, self.shape)
+        if np.any(hi <= lo):
+            return None
+        axes = [self.origin[a] + (np.arange(lo[a], hi[a]) + 0.5) * h - c[a] for a in range(3)]
+        return (tuple(slice(a, b) for a, b in zip(lo, hi)), *np.meshgrid(*axes, indexing="ij"))
 
     def state(self, points: np.ndarray) -> np.ndarray:
         """UNKNOWN / FREE / OCCUPIED of the voxel holding each point (N, 3); outside the grid: UNKNOWN."""

@@ -43,7 +43,8 @@ def load_scene(path: str | os.PathLike, unit_scale: float = 1.0, up_axis: str = 
 
     `up_axis`: "z", "y" or "auto" (estimated; an uncertain estimate keeps the file's axes, with a
     warning, when it lies within FILE_Z_TOLERANCE_DEG of the file's z axis, and is a SceneError
-    otherwise: neither can then be trusted to put the floor level). `up_vector` (3 numbers, file coordinates; None or empty: unused) overrides it.
+    otherwise: neither can then be trusted to put the floor level). `up_vector` (3 numbers, file
+    coordinates; None or empty: unused) overrides it.
     `rotation_deg`: an extra rotation about world x, then y, then z (degrees) after the up axis.
     What was applied, and the estimate, are in `scene.meta["up_axis"]`."""
     path = Path(path).expanduser()
