@@ -182,6 +182,9 @@ class MapperConfig:
     replay_window: float = option(1.0, 0.1, 1.0, doc="each replay iteration trains on a window of this share of the "
                                   "frame's width and height, placed at random (seeded) over the frame (0.5: a quarter "
                                   "of the pixels); 1: the whole frame (the paper)")
+    replay_downsample: int = option(1, 1, 8, doc="each replay iteration trains on the replayed frame at 1/n of its "
+                                    "width and height (n x n pixel blocks averaged; depth only where the block "
+                                    "agrees); 1: full resolution (the paper)")
     lambda_depth: float = option(5.0, 0.0, 1e3)
     lambda_distortion: float = option(1.0, 0.0, 1e3)
     lambda_normal: float = option(0.05, 0.0, 1e3)

@@ -10,7 +10,8 @@ import torch
 
 from flightrecon.config import MapperConfig
 from flightrecon.geometry import camera_pose
-from flightrecon.mapping.frames import Window, window_intrinsics
+from flightrecon.geometry import pixel_rays
+from flightrecon.mapping.frames import BLOCK_DEPTH_SPREAD, Window, downsample, scaled_intrinsics, window_intrinsics
 from flightrecon.mapping.image_metrics import depth_l1
 from flightrecon.mapping.mapper import TRAIN_OUTPUTS, OnlineMapper, seed_share
 from flightrecon.mapping.voxel_hash import voxel_keys
@@ -296,6 +297,63 @@ def test_a_replay_window_updates_only_the_splats_that_reach_it(views):
     assert torch.equal(stepped, reach)
     for name in ("means", "colors"):
         assert torch.equal(mapper.map[name][~reach], before[name][~reach]), name
+
+
+def test_downsampled_frames_hold_the_block_means_and_drop_depth_that_straddles_an_edge():
+    """Held to loops over the blocks: 2x2 and 3x3 blocks of a 7x10 frame with holes, a depth step and
+    a gentle slope (the rows and columns past the last whole block are dropped)."""
+    rng = np.random.default_rng(3)
+    rgb = rng.random((7, 10, 3)).astype(np.float32)
+    depth = (2.0 + 0.01 * np.arange(10, dtype=np.float32))[None].repeat(7, 0)  # 0.5% a pixel: kept
+    depth[:, 5:] += 1.0  # a step between columns 4 and 5
+    depth[1, 1] = depth[4, 8] = 0.0  # holes
+    for f in (2, 3):
+        color, mean_depth = downsample(torch.from_numpy(rgb), torch.from_numpy(depth)[..., None], f)
+        h, w = 7 // f, 10 // f
+        assert color.shape == (h, w, 3) and mean_depth.shape == (h, w, 1)
+        for i in range(h):
+            for j in range(w):
+                block = depth[f * i:f * i + f, f * j:f * j + f]
+                agree = block.min() > 0 and block.max() - block.min() <= BLOCK_DEPTH_SPREAD * block.mean()
+                assert float(mean_depth[i, j, 0]) == pytest.approx(block.mean() if agree else 0.0, rel=1e-6)
+                assert np.allclose(color[i, j].numpy(), rgb[f * i:f * i + f, f * j:f * j + f].mean((0, 1)))
+        straddling = [j for j in range(w) if f * j < 5 < f * j + f]
+        assert straddling and all(float(mean_depth[i, j, 0]) == 0.0 for i in range(h) for j in straddling)
+    same = downsample(torch.from_numpy(rgb), torch.from_numpy(depth)[..., None], 1)
+    assert torch.equal(same[0], torch.from_numpy(rgb))
+    with pytest.raises(ValueError, match="no whole 8x8 block"):
+        downsample(torch.from_numpy(rgb), torch.from_numpy(depth)[..., None], 8)
+
+
+@pytest.mark.parametrize("factor", [2, 3])
+def test_a_downsampled_pixel_sees_along_the_mean_ray_of_its_block(factor):
+    """Rays are affine in pixel coordinates, so the ray through a block's center is the mean of its
+    pixels' rays: the scaled camera's ray through each pixel must be that mean."""
+    K = np.array([[160.3, 0.0, 161.2], [0.0, 158.9, 118.7], [0.0, 0.0, 1.0]])
+    full = pixel_rays(12, 9, K)
+    small = pixel_rays(12 // factor, 9 // factor, scaled_intrinsics(torch.as_tensor(K), factor).numpy())
+    h, w = small.shape[:2]
+    means = full[:h * factor, :w * factor].reshape(h, factor, w, factor, 3).mean(axis=(1, 3))
+    assert np.allclose(small, means, atol=1e-12)
+
+
+def test_a_downsampled_replay_trains_the_map_toward_the_full_resolution_frame(views):
+    """A map seeded from a frame with a few iterations, then replayed on that frame at half its size:
+    its full-resolution loss falls, and only the splats that reach the small image are touched."""
+    K, vs = views
+    mapper = _mapper(k_new=3, k_replay=0, replay_downsample=2)
+    mapper.add_frame(*vs[0][:2], K, vs[0][2])
+    frame = mapper.frames[0]
+    small_K = scaled_intrinsics(frame.K, 2)
+    reach = mapper.render_view(frame.T_wc, small_K.numpy(), W // 2, H // 2).radii[0] > 0
+    before = {name: mapper.map[name].clone() for name in ("means", "adam_step")}
+    loss_before = mapper.frame_loss(0)
+    mapper._optimize(frame, 1, factor=2)
+    stepped = mapper.map["adam_step"] > before["adam_step"]
+    assert torch.equal(stepped, reach)
+    assert torch.equal(mapper.map["means"][~reach], before["means"][~reach])
+    mapper.refine(30)  # replays frame 0, the only one, at half size
+    assert mapper.frame_loss(0) < 0.8 * loss_before
 
 
 def _in_view(points: np.ndarray, T_wc: np.ndarray, K: np.ndarray) -> np.ndarray:

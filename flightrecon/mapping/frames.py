@@ -41,6 +41,37 @@ class Window:
         return slice(self.x0, self.x0 + self.width)
 
 
+# A block whose depths spread by more than this share of their mean straddles a depth edge (or a
+# surface seen nearly edge-on): its mean lies on no surface, so the block is no depth evidence.
+BLOCK_DEPTH_SPREAD = 0.05
+
+
+def downsample(rgb: torch.Tensor, depth: torch.Tensor, factor: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Color [H, W, 3] and depth [H, W, 1] (0: invalid) at 1/factor of the width and height, one pixel
+    per factor x factor block (rows and columns past the last whole block are dropped): the block's
+    mean color, and its mean depth where every depth of the block is valid and they spread by at most
+    BLOCK_DEPTH_SPREAD of that mean, else 0. The camera of the result is `scaled_intrinsics`."""
+    if factor == 1:
+        return rgb, depth
+    f = int(factor)
+    h, w = depth.shape[0] // f, depth.shape[1] // f
+    if h == 0 or w == 0:
+        raise ValueError(f"downsample: a {depth.shape[1]}x{depth.shape[0]} frame has no whole {f}x{f} block")
+    color = rgb[:h * f, :w * f].reshape(h, f, w, f, 3).mean(dim=(1, 3))
+    blocks = depth[:h * f, :w * f, 0].reshape(h, f, w, f)
+    low, high, mean = blocks.amin(dim=(1, 3)), blocks.amax(dim=(1, 3)), blocks.mean(dim=(1, 3))
+    agree = (low > 0) & (high - low <= BLOCK_DEPTH_SPREAD * mean)
+    return color, torch.where(agree, mean, torch.zeros_like(mean))[..., None]
+
+
+def scaled_intrinsics(K: torch.Tensor, factor: int) -> torch.Tensor:
+    """The intrinsics of the image `downsample` makes: pixel coordinates (centers at +0.5) divide by
+    the factor, so the first two rows of K do."""
+    Ks = K.clone()
+    Ks[:2] /= factor
+    return Ks
+
+
 def window_intrinsics(K: torch.Tensor, window: Window) -> torch.Tensor:
     """The intrinsics of the camera that sees just `window`: the principal point moves by its corner."""
     Kw = K.clone()

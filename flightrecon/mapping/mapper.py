@@ -7,7 +7,9 @@ from the frame, K_new Adam iterations on it, then K_replay iterations each on a 
 once the frame's loss has fallen to that share of its first value (after `k_new_min`): a view the
 map already explains needs few. With `replay_window` < 1 (not the paper's setting) each replay
 iteration trains on a window of the replayed frame, drawn at random: the frame keeps its full
-resolution while an iteration pays for a share of its pixels.
+resolution while an iteration pays for a share of its pixels. With `replay_downsample` n > 1 (not
+the paper's setting) each replay iteration trains on the whole frame at 1/n of its width and height
+(frames.downsample), a window of it if both are set.
 
 Pruning (`prune_opacity` > 0) drops the splats whose opacity fell below it after the update,
 every column with them (GaussianMap.keep: optimizer moments, reliability, the selectors'
@@ -30,7 +32,8 @@ from flightrecon.config import MapperConfig
 from flightrecon.errors import FlightReconError
 from flightrecon.geometry import pixel_rays
 from flightrecon.mapping import init as splat_init
-from flightrecon.mapping.frames import StoredFrame, Window, compact_frame, expand_frame, window_intrinsics
+from flightrecon.mapping.frames import (StoredFrame, Window, compact_frame, downsample, expand_frame,
+                                        scaled_intrinsics, window_intrinsics)
 from flightrecon.mapping.losses import ALPHA_MASK, FrameTarget, frame_target, training_loss
 from flightrecon.mapping.optimizer import SparseAdam
 from flightrecon.mapping.store import PARAM_SHAPES, GaussianMap
@@ -135,7 +138,8 @@ class OnlineMapper:
             pick = self._replay_pick(index)
             self._clock += 1
             self.last_trained[pick] = self._clock
-            self._optimize(self.frames[pick], 1, window=self._replay_window(self.frames[pick]))
+            self._optimize(self.frames[pick], 1, window=self._replay_window(self.frames[pick]),
+                           factor=self.cfg.replay_downsample)
 
     def _prune(self) -> None:
         """Drop the splats below `prune_opacity` (all columns) and keep their voxels taken; off at 0."""
@@ -165,11 +169,12 @@ class OnlineMapper:
         return int(self.rng.choice(index, p=weight / weight.sum()))
 
     def _replay_window(self, frame: StoredFrame) -> Window | None:
-        """A window of `replay_window` of the frame's width and height at a random place; None: all of it."""
+        """A window of `replay_window` of the width and height of the frame as replayed (at 1/
+        `replay_downsample`) at a random place; None: all of it."""
         share = self.cfg.replay_window
         if share >= 1.0:
             return None
-        H, W = frame.rgb.shape[:2]
+        H, W = (n // self.cfg.replay_downsample for n in frame.rgb.shape[:2])
         w, h = max(1, round(W * share)), max(1, round(H * share))
         return Window(int(self.rng.integers(W - w + 1)), int(self.rng.integers(H - h + 1)), w, h)
 
@@ -206,10 +211,10 @@ class OnlineMapper:
         return ~explained
 
     def _optimize(self, frame: StoredFrame, iters: int, count_observed: bool = False, stop_share: float = 0.0,
-                  min_iters: int = 0, window: Window | None = None) -> None:
-        """`iters` Adam iterations on one frame (or on its `window`), on the splats that may reach that
-        image; with `stop_share` > 0, fewer once (after `min_iters`) the loss is at most that share of
-        the first.
+                  min_iters: int = 0, window: Window | None = None, factor: int = 1) -> None:
+        """`iters` Adam iterations on one frame (at 1/`factor` of its size, or on a `window` of that),
+        on the splats that may reach that image; with `stop_share` > 0, fewer once (after `min_iters`)
+        the loss is at most that share of the first.
 
         Only splats the camera can see get gradient and updates, and the rest stay fixed during the
         call, so one conservative culling test at the start (_view_rows) picks every splat that could
@@ -223,10 +228,11 @@ class OnlineMapper:
         if iters <= 0 or len(self.map) == 0:
             return
         with profiling.stage("view setup"):
-            target = self._target(frame, window)
+            target = self._target(frame, window, factor)
             H, W = target.depth.shape[:2]
             viewmat = frame.viewmat.to(self.device)[None]
-            Ks = (frame.K if window is None else window_intrinsics(frame.K, window)).to(self.device)[None]
+            K = scaled_intrinsics(frame.K, factor) if factor > 1 else frame.K
+            Ks = (K if window is None else window_intrinsics(K, window)).to(self.device)[None]
             rows = self._view_rows(viewmat[0], Ks[0], W, H)
             if len(rows) == 0:
                 return
@@ -328,9 +334,9 @@ class OnlineMapper:
         return training_loss(out, target, ssim_weight=c.ssim_weight, lambda_depth=c.lambda_depth,
                              lambda_normal=c.lambda_normal, lambda_distortion=c.lambda_distortion)
 
-    def _target(self, frame: StoredFrame, window: Window | None = None) -> FrameTarget:
-        rgb, depth = expand_frame(frame, self.device)
-        rays = self._rays_for(depth.shape[1], depth.shape[0], frame.K)
+    def _target(self, frame: StoredFrame, window: Window | None = None, factor: int = 1) -> FrameTarget:
+        rgb, depth = downsample(*expand_frame(frame, self.device), factor)
+        rays = self._rays_for(depth.shape[1], depth.shape[0], scaled_intrinsics(frame.K, factor))
         if window is not None:
             rgb, depth, rays = (image[window.rows, window.cols] for image in (rgb, depth, rays))
         return frame_target(rgb, depth, rays, with_ssim=self.cfg.ssim_weight > 0)
