@@ -66,7 +66,9 @@ def downsample(rgb: torch.Tensor, depth: torch.Tensor, factor: int) -> tuple[tor
 
 def scaled_intrinsics(K: torch.Tensor, factor: int) -> torch.Tensor:
     """The intrinsics of the image `downsample` makes: pixel coordinates (centers at +0.5) divide by
-    the factor, so the first two rows of K do."""
+    the factor, so the first two rows of K do (K itself at factor 1, as `downsample`)."""
+    if factor == 1:
+        return K
     Ks = K.clone()
     Ks[:2] /= factor
     return Ks

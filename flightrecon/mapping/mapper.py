@@ -231,7 +231,7 @@ class OnlineMapper:
             target = self._target(frame, window, factor)
             H, W = target.depth.shape[:2]
             viewmat = frame.viewmat.to(self.device)[None]
-            K = scaled_intrinsics(frame.K, factor) if factor > 1 else frame.K
+            K = scaled_intrinsics(frame.K, factor)
             Ks = (K if window is None else window_intrinsics(K, window)).to(self.device)[None]
             rows = self._view_rows(viewmat[0], Ks[0], W, H)
             if len(rows) == 0:
