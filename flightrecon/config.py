@@ -157,6 +157,9 @@ class PlannerConfig:
     look_hz: float = option(4.0, 0.0, 100.0, doc="depth frames per simulated second the camera streams into the "
                             "occupancy map while flying, take-off included (not into the splat map): space is "
                             "seen before it is entered; 0: only the captures")
+    look_width: int = option(160, 0, 100000, doc="px; the streamed frames are the camera's image reduced by the "
+                             "smallest whole factor that brings its width to at most this: 160 is the width "
+                             "free_range was set for; 0: the camera's size")
     max_height: float = option(2.7, 0.5, 100.0, doc="m above the detected floor: the top of the flight workspace "
                            "where the scene has no ceiling (open scans whose walls end low)")
 

@@ -17,7 +17,7 @@ from flightrecon.scene.patterns import solid
 from flightrecon.scene.procedural import make_scene
 from flightrecon.scene.replica_ply import quads_to_triangles
 from flightrecon.scene.types import Scene
-from flightrecon.sim.camera import RGBDCamera
+from flightrecon.sim.camera import RGBDCamera, reduction_for_width
 from flightrecon.sim.world import build_world
 
 GRAY = (0.25, 0.5, 0.75)
@@ -73,6 +73,37 @@ def test_depth_of_a_tilted_plane_is_exact_to_a_millimeter(plane_world):
     assert (depth > 0).all()
     assert np.abs(depth - expected).max() < 1e-3
     assert expected.max() - expected.min() > 1.0  # the plane is really seen at an angle
+
+
+@pytest.mark.parametrize("reduce", [2, 4])
+def test_a_reduced_render_is_the_smaller_camera_exact_to_a_millimeter(plane_world, reduce):
+    cam = RGBDCamera(plane_world, 320, 240, 90.0, 0.05, 20.0)
+    T = camera_pose([0.0, 0.1, 0.2], yaw=0.15, pitch_deg=8.0)
+    _, depth = cam.render(T, reduce)
+    small = RGBDCamera(plane_world, 320 // reduce, 240 // reduce, 90.0, 0.05, 20.0)
+    np.testing.assert_array_equal(cam.intrinsics_at(reduce), small.K)
+    assert depth.shape == (240 // reduce, 320 // reduce)
+    assert np.abs(depth - _plane_depth(small, T)).max() < 1e-3
+    _, full = cam.render(T)  # the full size is drawn whole after a reduced one
+    assert np.abs(full - _plane_depth(cam, T)).max() < 1e-3
+
+
+@pytest.mark.parametrize("reduce", [0, 3, 1.5])
+def test_a_factor_that_does_not_divide_the_image_is_refused(plane_world, reduce):
+    cam = RGBDCamera(plane_world, 320, 240, 90.0, 0.05, 20.0)
+    with pytest.raises(ValueError, match=f"cannot reduce a 320x240 image by {reduce}"):
+        cam.render(camera_pose([0.0, 0.0, 0.3], yaw=0.0), reduce)
+
+
+@pytest.mark.parametrize("size, max_width, factor", [
+    ((320, 240), 160, 2), ((640, 480), 160, 4), ((160, 120), 160, 1), ((80, 60), 160, 1),
+    ((300, 225), 160, 3),  # common divisors 1, 3, 5, 15, 25, 75: 300 / 3 = 100 is the first <= 160
+    ((322, 241), 160, 1),  # coprime sides: nothing divides both
+    ((330, 240), 50, 10),  # common 1, 2, 3, 5, 6, 10, 15, 30: 330 / 6 = 55, 330 / 10 = 33
+    ((322, 240), 50, 2),  # common 1, 2: none brings 322 to 50, so the largest
+    ((640, 480), 0, 1)])
+def test_the_reduction_for_a_width_divides_both_sides(size, max_width, factor):
+    assert reduction_for_width(*size, max_width) == factor
 
 
 def test_unlit_color_equals_the_mesh_color(plane_world):

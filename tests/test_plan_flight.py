@@ -86,16 +86,18 @@ def test_ompl_detour_around_a_wall_is_flown_without_contact():
 
 @pytest.mark.slow
 def test_steps_planned_on_the_online_map_keep_clear_of_the_true_scene():
-    """Closed loop on what the camera saw: turn in place capturing, then library steps on the map."""
+    """Closed loop on what the camera saw: turn in place capturing, then library steps on the map; the
+    captures at 320x240 and the frames streamed in flight at planner.look_width (160x120), as in the
+    default scenario."""
     from flightrecon.planning.distance_field import DistanceField
     from flightrecon.planning.poses import start_position, workspace_of
     from flightrecon.scene.source import procedural_scene
-    from flightrecon.sim.camera import RGBDCamera
+    from flightrecon.sim.camera import RGBDCamera, reduction_for_width
     from flightrecon.sim.flight import Flight
     from flightrecon.sim.safety import ClearanceMonitor
     from flightrecon.sim.world import build_world
 
-    cfg = load_config(None, ["scene.name=room0", "camera.width=160", "camera.height=120"])
+    cfg = load_config(None, ["scene.name=room0", "camera.width=320", "camera.height=240"])
     scene = procedural_scene("room0", 0)
     ws = workspace_of(scene, 2.7)
     start = start_position(scene, cfg.sim.takeoff_height)
@@ -113,7 +115,14 @@ def test_steps_planned_on_the_online_map_keep_clear_of_the_true_scene():
         _, depth, T_wc, _ = flight.capture(cam)
         planner.integrate(depth, cam.K, T_wc, body_position=flight.state.position)
 
-    flight.watch(capture, 1.0 / cfg.planner.look_hz)  # as the mission: the camera streams depth in flight
+    reduce = reduction_for_width(cfg.camera.width, cfg.camera.height, cfg.planner.look_width)
+    assert reduce == 2
+
+    def look():  # as the mission: the camera streams depth in flight
+        depth, T_wc = flight.capture_depth(cam, reduce)
+        planner.integrate(depth, cam.intrinsics_at(reduce), T_wc, body_position=flight.state.position)
+
+    flight.watch(look, 1.0 / cfg.planner.look_hz)
 
     def now() -> FlatState:
         s = flight.state

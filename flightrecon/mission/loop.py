@@ -46,6 +46,7 @@ from flightrecon.planning.paths import seed_ompl
 from flightrecon.recording import NullRecorder, Stage, open_recorder
 from flightrecon.rig import build_rig
 from flightrecon.scenario import load_config
+from flightrecon.sim.camera import reduction_for_width
 from flightrecon.sim.flight import Flight, FlightDiverged
 from flightrecon.sim.quadrotor import camera_offset
 from flightrecon.sim.safety import ClearanceMonitor, FlightContact
@@ -64,6 +65,7 @@ class Mission:
         self.rig = rig = build_rig(cfg)
         self.flight = Flight.from_world(rig.world, cfg, ClearanceMonitor(rig.scene.trimesh, cfg.drone.body_radius))
         self.planner = Planner(cfg, rig.workspace, rig.scene.trimesh, rig.start)
+        self.look_reduce = reduction_for_width(cfg.camera.width, cfg.camera.height, cfg.planner.look_width)
         if cfg.planner.look_hz > 0:
             self.flight.watch(self._look, 1.0 / cfg.planner.look_hz)
         self.mapper = OnlineMapper(cfg.mapper, near=cfg.camera.near, far=cfg.camera.far, seed=cfg.seed)
@@ -166,8 +168,9 @@ class Mission:
 
     def _look(self) -> None:
         """A depth frame the camera streams in flight, for the occupancy map alone (planner.look_hz)."""
-        _, depth, T_wc, _ = self.flight.capture(self.rig.camera)
-        self.planner.integrate(depth, self.rig.K, T_wc, body_position=self.flight.state.position)
+        depth, T_wc = self.flight.capture_depth(self.rig.camera, self.look_reduce)
+        self.planner.integrate(depth, self.rig.camera.intrinsics_at(self.look_reduce), T_wc,
+                               body_position=self.flight.state.position)
 
     # ------------------------------------------------------------------ one step
     def _step(self, last: bool) -> dict:

@@ -6,6 +6,8 @@ to MuJoCo's camera axes go through `geometry`. EGL is selected by `import flight
 
 from __future__ import annotations
 
+import math
+
 import mujoco
 import numpy as np
 
@@ -23,6 +25,15 @@ def _limit_atlas_mipmaps(world: World, ctx: mujoco.MjrContext) -> None:
 
 
 _OFF_FLAGS = ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX", "mjRND_FOG", "mjRND_HAZE")
+
+
+def reduction_for_width(width: int, height: int, max_width: int) -> int:
+    """The smallest whole factor dividing both sides that brings `width` to at most `max_width`; the
+    largest common one where none does; 1 for max_width 0 (no reduction)."""
+    if max_width <= 0 or width <= max_width:
+        return 1
+    common = [n for n in range(1, math.gcd(width, height) + 1) if width % n == 0 and height % n == 0]
+    return next((n for n in common if width // n <= max_width), common[-1])
 
 
 class RGBDCamera:
@@ -63,17 +74,20 @@ class RGBDCamera:
         self._rgb = np.empty((self.height, self.width, 3), np.uint8)
         self._depth = np.empty((self.height, self.width), np.float32)
 
-    def render(self, T_wc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(rgb (H,W,3) float32 in [0,1], depth (H,W) float32 m) seen from the OpenCV pose T_wc."""
+    def render(self, T_wc: np.ndarray, reduce: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """(rgb (H,W,3) float32 in [0,1], depth (H,W) float32 m) seen from the OpenCV pose T_wc; with
+        `reduce` n > 1 the images are 1/n of the sensor's width and height, same field of view
+        (intrinsics `intrinsics_at(n)`)."""
         T_wc = np.asarray(T_wc, float)
         m, d = self.world.model, self.world.data
         d.cam_xpos[self._cam_id] = T_wc[:3, 3]
         d.cam_xmat[self._cam_id] = opencv_to_mujoco_rotation(T_wc[:3, :3]).ravel()
         m.cam_fovy[self._cam_id] = self.vfov_deg
-        return self._draw(self._cam_id)
+        return self._draw(self._cam_id, reduce)
 
-    def render_named(self, camera_name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Render a camera of the model (e.g. the drone's) at its current pose: (rgb, depth, T_wc).
+    def render_named(self, camera_name: str, reduce: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Render a camera of the model (e.g. the drone's) at its current pose: (rgb, depth, T_wc), at
+        1/`reduce` of the sensor's size as in `render`.
 
         The model camera must have this sensor's field of view, so that `K` describes the image."""
         m, d = self.world.model, self.world.data
@@ -85,19 +99,34 @@ class RGBDCamera:
             raise ValueError(f"camera '{camera_name}' has a vertical FOV of {float(m.cam_fovy[cam_id]):.4f} deg, "
                              f"this sensor {self.vfov_deg:.4f} deg: build it from the same camera config")
         T_wc = mujoco_camera_to_opencv(d.cam_xpos[cam_id], d.cam_xmat[cam_id])
-        rgb, depth = self._draw(cam_id)
+        rgb, depth = self._draw(cam_id, reduce)
         return rgb, depth, T_wc
 
-    def _draw(self, cam_id: int) -> tuple[np.ndarray, np.ndarray]:
+    def intrinsics_at(self, reduce: int) -> np.ndarray:
+        """K of the images `render(..., reduce)` returns."""
+        return intrinsics(*self._reduced_size(reduce), self.hfov_deg)
+
+    def _reduced_size(self, reduce: int) -> tuple[int, int]:
+        n = int(reduce)
+        if n != reduce or n < 1 or self.width % n or self.height % n:
+            raise ValueError(f"cannot reduce a {self.width}x{self.height} image by {reduce}: the factor must be a "
+                             f"whole number >= 1 dividing both sides")
+        return self.width // n, self.height // n
+
+    def _draw(self, cam_id: int, reduce: int = 1) -> tuple[np.ndarray, np.ndarray]:
         m, d = self.world.model, self.world.data
+        w, h = self._reduced_size(reduce)
+        # the viewport's corner of the offscreen buffer: the projection keeps the camera's fovy and
+        # the viewport's aspect, which a whole factor leaves unchanged
+        rect, rgb, depth = ((self._rect, self._rgb, self._depth) if (w, h) == (self.width, self.height) else
+                            (mujoco.MjrRect(0, 0, w, h), np.empty((h, w, 3), np.uint8), np.empty((h, w), np.float32)))
         self._gl.make_current()
         m.vis.map.znear, m.vis.map.zfar = self._clip  # the model is shared with other cameras
         self._vcam.fixedcamid = cam_id
         mujoco.mjv_updateScene(m, d, self._opt, None, self._vcam, mujoco.mjtCatBit.mjCAT_ALL, self._scene)
-        mujoco.mjr_render(self._rect, self._scene, self._ctx)
-        mujoco.mjr_readPixels(self._rgb, self._depth, self._rect, self._ctx)
-        rgb = np.flipud(self._rgb).astype(np.float32) * np.float32(1.0 / 255.0)
-        return rgb, self._linear_depth(np.flipud(self._depth))
+        mujoco.mjr_render(rect, self._scene, self._ctx)
+        mujoco.mjr_readPixels(rgb, depth, rect, self._ctx)
+        return np.flipud(rgb).astype(np.float32) * np.float32(1.0 / 255.0), self._linear_depth(np.flipud(depth))
 
     def _linear_depth(self, z: np.ndarray) -> np.ndarray:
         """Metric z-depth from the [0, 1] window depth of MuJoCo's perspective projection."""

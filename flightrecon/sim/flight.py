@@ -320,6 +320,13 @@ class Flight:
         rgb, depth, T_wc = camera.render_named("drone_cam")
         return rgb, depth, self.estimated_camera_pose(T_wc), T_wc
 
+    def capture_depth(self, camera, reduce: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Depth alone from drone_cam at 1/`reduce` of `camera`'s size (K: camera.intrinsics_at(reduce)),
+        and T_wc with the same pose noise as `capture`."""
+        self.sync()
+        _, depth, T_wc = camera.render_named("drone_cam", reduce)
+        return depth, self.estimated_camera_pose(T_wc)
+
     def estimated_camera_pose(self, T_wc: np.ndarray | None = None) -> np.ndarray:
         """T_wc with the configured pose noise (sim.pose_noise_pos_m, sim.pose_noise_rot_deg)."""
         T = (self.camera_pose() if T_wc is None else np.asarray(T_wc, float)).copy()
