@@ -159,7 +159,10 @@ struct Bins {
   std::vector<int32_t> rect;     // record -> px0, py0, px1, py1 (inclusive)
   std::vector<S> rec;            // records, REC + D values each
   int R = REC;
-  std::vector<int64_t> ends;     // per tile, where its blend stops when shorter than its list (feature_sums)
+  // feature_sums' cut (empty: none), per list entry: a pixel whose transmittance is below stop_T
+  // stops before the entry, and left_max is the largest feature from the entry to the end of its
+  // tile's list, so what the pixel leaves out is at most its transmittance times left_max.
+  std::vector<S> stop_T, left_max;
   // Per list entry (a splat in a tile), when the AVX2 forward kept it for the backward: a bit for each
   // pixel group it visited in which some pixel blended (group_bit), so the backward evaluates only
   // those. Empty: not recorded, the backward evaluates every group.
@@ -177,6 +180,7 @@ struct FwdOut {
 
 struct TileWork {
   int64_t evals = 0, blends = 0;
+  double left = 0;  // with Bins::stop_T: the sum over the pixels it stopped of transmittance x left_max
 };
 
 // One camera's projection and bins as a forward call computed them, kept for its backward (which

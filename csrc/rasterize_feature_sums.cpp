@@ -4,16 +4,19 @@
 // w < -w_min, 0 otherwise, times |w| when `weighted`). The forward's stages with one feature
 // channel and a camera per thread.
 //
-// With floor > 0, each tile stops blending after its last splat whose feature reaches the floor:
-// the splats it drops all carry less than floor, and the weight left behind the cut at a pixel is
-// its transmittance there, so the exact sum lies in [sum, sum + bound] with
-// bound = floor * sum over the cut tiles' pixels of (1 - blended alpha) (float rounding aside).
+// With floor > 0, a pixel stops before a splat of its tile's depth-ordered list once its
+// transmittance times the largest feature from there to the list's end is below the floor: the
+// features are >= 0 and the weights of what follows sum to at most that transmittance, so what it
+// leaves out is at most the floor. The exact sum lies in [sum, sum + bound], bound = the sum over
+// the stopped pixels of transmittance x that largest feature (float rounding aside). A list's tail
+// of zero features stops every pixel at no cost to the bound.
 #include <omp.h>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 #include "rasterize_torch.h"
@@ -85,32 +88,32 @@ std::vector<torch::Tensor> feature_sums_impl(torch::Tensor means, torch::Tensor 
       sc.projected += vis.projected;
       sc.binned += int64_t(vis.binned.size());
       Bins<S> B = bin_and_sort(P, groups, vis, feat.data(), 1, st, sc);
-      std::vector<char> cut(tiles, 0);
       if (floor > 0) {
-        B.ends.resize(tiles);
+        B.stop_T.resize(B.ids.size());
+        B.left_max.resize(B.ids.size());
         for (int t = 0; t < tiles; ++t) {
-          int64_t e = B.offsets[t + 1];
-          while (e > B.offsets[t] && !(B.rec[size_t(B.ids[e - 1]) * B.R + REC] >= S(floor))) --e;
-          B.ends[t] = e;
-          cut[t] = e < B.offsets[t + 1];
+          S most = 0;
+          for (int64_t e = B.offsets[t + 1] - 1; e >= B.offsets[t]; --e) {
+            most = std::max(most, B.rec[size_t(B.ids[e]) * B.R + REC]);
+            B.left_max[e] = most;
+            B.stop_T[e] = most > 0 ? S(floor) / most : std::numeric_limits<S>::infinity();
+          }
         }
       }
       t0 = omp_get_wtime();
       const FwdOut<S> out{img.data(), alpha.data(), nullptr, nullptr, nullptr, nullptr, nullptr, nullptr, nullptr};
+      double left = 0;
       for (int t = 0; t < tiles; ++t) {
         const TileWork tw = forward_tile<S, false>(t, B, 1, st, fl, out);
         sc.evals += tw.evals;
         sc.blends += tw.blends;
+        left += tw.left;
       }
       sc.blend += omp_get_wtime() - t0;
-      double total = 0, left = 0;
-      for (int64_t y = 0; y < H; ++y)
-        for (int64_t x = 0; x < W; ++x) {
-          total += double(img[y * W + x]);
-          if (cut[(y / TS) * st.tiles_x + x / TS]) left += std::max(0.0, 1.0 - double(alpha[y * W + x]));
-        }
+      double total = 0;
+      for (int64_t q = 0; q < W * H; ++q) total += double(img[q]);
       out_sum[c] = total;
-      out_bound[c] = floor * left;
+      out_bound[c] = left;
       for (const int32_t s : vis.binned) feat[groups.id[s]] = S(0);
     }
   }

@@ -29,7 +29,7 @@ struct FwdTile {
   std::vector<S> accF, accN;  // [D][TP], [3][TP] (normals only when rendered)
   FwdTile(int tile, const Bins<S>& B, int D, const Settings& st, const Flags& fl)
       : tx(tile % st.tiles_x), ty(tile / st.tiles_x), b0(B.offsets[tile]),
-        b1(B.ends.empty() ? B.offsets[tile + 1] : B.ends[tile]),
+        b1(B.offsets[tile + 1]),
         accF(size_t(D) * TP, S(0)), accN(fl.normal ? 3 * TP : 0, S(0)) {
     for (int p = 0; p < TP; ++p) {
       const SlotPixel sl = slot_pixel(p, tx, ty, st.W, st.H);
@@ -73,6 +73,8 @@ TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, con
   const __m256 amax = _mm256_set1_ps(float(ALPHA_MAX)), amin = _mm256_set1_ps(float(ALPHA_MIN));
   const __m256 tmin = _mm256_set1_ps(float(T_MIN)), half = _mm256_set1_ps(0.5f);
   const __m256 vmscale = _mm256_set1_ps(mscale);
+  const bool cut = !B.stop_T.empty();
+  double left = 0;
   constexpr int AHEAD = 8;
   for (int64_t jj = b0; jj < b1 && rows_alive > 0; ++jj) {
     if (jj + AHEAD < b1) {
@@ -93,9 +95,26 @@ TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, con
     const __m256 vj = _mm256_castsi256_ps(_mm256_set1_epi32(j));
     const __m256 vj1 = _mm256_castsi256_ps(_mm256_set1_epi32(j + 1));
     uint32_t visited_blend = 0;  // Bins::blended of this record
+    const __m256 vstop = _mm256_set1_ps(cut ? B.stop_T[jj] : 0.0f);
     // One group at slot pg (see load8); returns the mask of its pixels that terminate.
     auto group = [&](auto pair, int pg, const RowVec& rv, int bit) -> int {
       constexpr bool P = decltype(pair)::value;
+      int cm = 0;  // pixels the cut stops before this record
+      if (cut) {
+        const __m256 T0 = load8<P>(T + pg), act0 = load8<P>(act + pg);
+        const __m256 live0 = _mm256_cmp_ps(act0, zero, _CMP_NEQ_UQ);
+        const __m256 early = _mm256_and_ps(live0, _mm256_cmp_ps(T0, vstop, _CMP_LT_OQ));
+        cm = _mm256_movemask_ps(early);
+        if (cm) {
+          store8<P>(act + pg, _mm256_andnot_ps(early, act0));
+          alignas(32) float ts[LANES];
+          _mm256_store_ps(ts, _mm256_and_ps(early, T0));
+          double sum = 0;
+          for (const float v : ts) sum += double(v);
+          left += sum * double(B.left_max[jj]);
+          if (cm == _mm256_movemask_ps(live0)) return cm;
+        }
+      }
       evals += LANES;
       const __m256 x = load8<P>(px + pg);
       const Hit8 h = hit8(x, rv, vmx, m6, m7, m8);
@@ -111,7 +130,7 @@ TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, con
       const int bm = _mm256_movemask_ps(blend), sm = _mm256_movemask_ps(stop);
       blends += __builtin_popcount(unsigned(bm));
       if (sm) store8<P>(act + pg, _mm256_andnot_ps(stop, actp));
-      if (!bm) return sm;
+      if (!bm) return sm | cm;
       visited_blend |= 1u << bit;
       const __m256 wp = _mm256_and_ps(blend, _mm256_mul_ps(a, Tp));
       if constexpr (TRACK) {  // features-only calls (view selection) skip the depth bookkeeping
@@ -141,7 +160,7 @@ TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, con
         store8<P>(accM + pg, _mm256_add_ps(load8<P>(accM + pg), wm));
         store8<P>(accM2 + pg, _mm256_fmadd_ps(wm, m, load8<P>(accM2 + pg)));
       }
-      return sm;
+      return sm | cm;
     };
     // clears the live bits of the pixels of row r whose terminate bits are set in sm (4 or 8 bits)
     auto terminate = [&](int r, uint32_t sm, int c) {
@@ -172,7 +191,7 @@ TileWork forward_splats_avx2(FwdTile<float>& t, const Bins<float>& B, int D, con
     }
     if (out_blended) out_blended[jj] = visited_blend;
   }
-  return TileWork{evals, blends};
+  return TileWork{evals, blends, left};
 }
 #endif
 
@@ -198,6 +217,8 @@ TileWork forward_splats_generic(FwdTile<S>& t, const Bins<S>& B, int D, const Se
   }
   bool row_alive[TS];
   for (int r = 0; r < TS; ++r) row_alive[r] = ty * TS + r < st.H;
+  const bool cut = !B.stop_T.empty();
+  double left = 0;
   constexpr int CHUNK = 32;
   for (int64_t jj = b0; jj < b1; ++jj) {
     if (jj > b0 && ((jj - b0) % CHUNK) == 0 && std::none_of(row_alive, row_alive + TS, [](bool b) { return b; }))
@@ -218,6 +239,16 @@ TileWork forward_splats_generic(FwdTile<S>& t, const Bins<S>& B, int D, const Se
       }
       const Row<S> rw = row_of(M, py[p00], my);
       for (int p = p00; p < p00 + RS; ++p) w[p] = S(0);
+      if (cut) {  // the pixels the cut stops before this record (see Bins::stop_T)
+        const S stop_T = B.stop_T[jj];
+        S stopped = 0;
+        for (int p = p00 + c0; p < p00 + c1; ++p) {
+          const bool early = act[p] != 0 && T[p] < stop_T;
+          stopped += early ? T[p] : S(0);
+          act[p] = early ? S(0) : act[p];
+        }
+        left += double(stopped) * double(B.left_max[jj]);
+      }
       evals += c1 - c0;
       for (int pg = p00 + c0; pg < p00 + c1; pg += LANES) {
 #pragma omp simd reduction(| : any) reduction(+ : blends)
@@ -271,7 +302,7 @@ TileWork forward_splats_generic(FwdTile<S>& t, const Bins<S>& B, int D, const Se
       }
     }
   }
-  return TileWork{evals, blends};
+  return TileWork{evals, blends, left};
 }
 
 // A tile's sums into the images, at its pixels in the image.

@@ -15,6 +15,7 @@ from flightrecon.geometry import camera_pose, intrinsics, rotmat_to_quat
 from flightrecon.mission import Mission
 from flightrecon.render import render, sided_feature_sums
 from flightrecon.render.feature_sums import side_values, view_cosines
+from flightrecon.render.extension import load
 from flightrecon.render.projection import quat_to_rotmat
 from flightrecon.scenario import load_config
 
@@ -77,11 +78,12 @@ def test_back_side_and_edge_on_pick_their_values():
     torch.testing.assert_close(s, torch.tensor([1.0, 7.0], dtype=torch.float64) * coverage, rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])  # the AVX2 loop and the generic one
 @pytest.mark.parametrize("floor", [1e-3, 0.05, 0.5])
-def test_cut_stays_within_its_bound(floor):
-    splats = _cloud(600, seed=4)
+def test_cut_stays_within_its_bound(floor, dtype):
+    splats = [t.to(dtype) for t in _cloud(600, seed=4)]
     g = torch.Generator().manual_seed(5)
-    sided = torch.where(torch.rand(600, 2, generator=g) < 0.7, 1e-4, torch.rand(600, 2, generator=g))
+    sided = torch.where(torch.rand(600, 2, generator=g) < 0.7, 1e-4, torch.rand(600, 2, generator=g)).to(dtype)
     vm, K = _cams(6, seed=6)
     exact = sided_feature_sums(*splats, sided, vm, K, W, H, w_min=0.1, backend="cpu").sums
     cut = sided_feature_sums(*splats, sided, vm, K, W, H, w_min=0.1, floor=floor, backend="cpu")
@@ -89,6 +91,14 @@ def test_cut_stays_within_its_bound(floor):
     assert (cut.sums <= exact + slack).all()
     assert (exact <= cut.sums + cut.bound + slack).all()
     assert (cut.bound <= floor * W * H).all()
+
+
+def test_zero_features_stop_every_pixel_at_no_cost_to_the_bound():
+    splats = _cloud(600, seed=4)
+    vm, K = _cams(6, seed=6)
+    cut = sided_feature_sums(*splats, torch.zeros(600, 2), vm, K, W, H, w_min=0.1, floor=1e-3, backend="cpu")
+    assert (cut.sums == 0).all() and (cut.bound == 0).all()
+    assert load().last_stats()["evals"] == 0  # nothing left to add: no pixel evaluates a splat
 
 
 @pytest.mark.parametrize("value", [0.0, 1e-40, 1e30])
@@ -116,6 +126,8 @@ def test_bad_inputs_name_the_tensor():
         sided_feature_sums(*splats, torch.ones(50, 3), vm, K, W, H, w_min=0.1, backend="cpu")
     with pytest.raises(FlightReconError, match="floor"):
         sided_feature_sums(*splats, torch.ones(50, 2), vm, K, W, H, w_min=0.1, floor=-1.0, backend="cpu")
+    with pytest.raises(FlightReconError, match="negative values: give floor=0"):
+        sided_feature_sums(*splats, -torch.ones(50, 2), vm, K, W, H, w_min=0.1, floor=1e-3, backend="cpu")
 
 
 # ------------------------------------------------------------------ culled scoring on real maps
@@ -168,8 +180,24 @@ def test_culled_scoring_picks_the_exact_argmax(flown, kind):
                                K[None].expand(len(poses), 3, 3).contiguous(), w, h, args["near"], args["far"],
                                w_min=args["w_min"], floor=1e-3, backend="cpu")
     assert (exact <= first.sums + first.bound + 1e-5 * exact).all()
-    if kind == "none_reliable":  # every splat informative: nothing to cut
-        torch.testing.assert_close(first.sums, exact, rtol=1e-6, atol=0.0)
+    assert (exact - first.sums <= 1e-3 * w * h + 1e-5 * exact).all()  # at most the floor per pixel
+
+
+@pytest.mark.slow
+def test_the_cut_evaluates_fewer_splats_on_a_flown_map(flown):
+    mission, poses = flown
+    splats = mission.mapper.splats()
+    sided = torch.nn.functional.softplus(-mission.selector.reliability(mission.view))
+    c = mission.cfg
+    K = scoring_intrinsics(c)[None].expand(len(poses), 3, 3).contiguous()
+    evals = []
+    for floor in (0.0, 1e-3):
+        sided_feature_sums(splats["means"], splats["quats"], splats["log_scales"], splats["opacity_logits"], sided,
+                           torch.linalg.inv(poses), K, c.selector.scoring_width, c.selector.scoring_height,
+                           mission.mapper.near, mission.mapper.far, w_min=c.reliability.w_min, floor=floor,
+                           backend="cpu")
+        evals.append(load().last_stats()["evals"])
+    assert 0 < evals[1] < evals[0]
 
 
 @pytest.mark.slow

@@ -54,8 +54,8 @@ def score_candidates(splats: dict[str, torch.Tensor], reliability: torch.Tensor,
     below ranks the sums with it, so the argmax stays exact for the total.
 
     With prior "one" the MI is the pixel sum of the sided gain (render.sided_feature_sums). With
-    `gain_floor` > 0 a first pass drops, per tile, the splats behind the last one whose gain reaches
-    the floor, which gives each candidate's MI within [lower, lower + bound]; the candidates whose
+    `gain_floor` > 0 a first pass stops each pixel where what is left behind it can add less than
+    the floor (render.sided_feature_sums), which gives each candidate's MI within [lower, lower + bound]; the candidates whose
     upper end reaches the best lower end are scored again exactly. Those keep their exact MI, the
     others their lower bound, so the argmax is the exact argmax."""
     C = T_wc.shape[0]

@@ -58,8 +58,9 @@ class ReliabilityConfig:
                              "of the observed depth, where a pixel mixes two surfaces and the observed normal is "
                              "undefined (the color term stays); off: the paper's loss image at every pixel")
     measurement_prior: str = option("one", choices=("one", "depth_noise"))
-    gain_floor: float = option(1e-3, 0.0, 1e6, doc="scoring: a first pass stops each tile after its last splat whose "
-                               "information gain reaches this, bounding each candidate's MI from above and below; "
+    gain_floor: float = option(1e-3, 0.0, 1e6, doc="scoring: a first pass stops a pixel once its transmittance times "
+                               "the largest information gain left behind it is below this, bounding each candidate's "
+                               "MI from above and below; "
                                "candidates that can still win are scored again exactly, so the chosen view is the "
                                "exact argmax. 0: every candidate exactly")
     moved_from = {"selector.measurement_prior": "measurement_prior", "selector.gain_floor": "gain_floor"}

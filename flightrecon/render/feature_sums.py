@@ -8,11 +8,11 @@ with these per-camera features is what a view-selection criterion of the form
 sum_j sum_i f_i T^[i,j] needs (2D GauSS-MI's MI, docs/equations.md), without the [C,N] feature
 tensor or the [C,H,W] images.
 
-`floor` > 0 trades exactness for speed with a guaranteed bound: every 16x16 tile stops blending
-after the last splat in its depth-sorted list whose value reaches the floor, so what it drops is
-behind every such splat and carries less than `floor`, and at most the transmittance left at the
-cut. The result holds sums <= exact <= sums + bound per camera (bound = floor x the summed
-transmittance left at the cut pixels). Only the cpu backend cuts; the others render exactly
+`floor` > 0 trades exactness for speed with a guaranteed bound: a pixel stops before a splat of
+its 16x16 tile's depth-sorted list once its transmittance times the largest value from there to
+the list's end is below `floor`; values are >= 0 and what follows weighs at most that
+transmittance. The result holds sums <= exact <= sums + bound per camera (bound = the sum of those
+products over the stopped pixels, under `floor` each). Only the cpu backend cuts; the others render exactly
 (bound 0) through `render`, which is also the torch twin the tests hold the kernel to.
 """
 
@@ -63,6 +63,9 @@ def sided_feature_sums(means: Tensor, quats: Tensor, log_scales: Tensor, opacity
     check_inputs(means, quats, log_scales, opacity_logits, sided, viewmats, Ks, width, height, near, far, ())
     if not floor >= 0.0:
         raise FlightReconError(f"sided_feature_sums: floor must be >= 0, got {floor}")
+    if floor > 0 and bool((sided < 0).any()):
+        raise FlightReconError("sided_feature_sums: a cut (floor > 0) bounds only sums of values >= 0; sided holds "
+                               "negative values: give floor=0")
     zeros = torch.zeros(C, dtype=torch.float64)
     if C == 0 or means.shape[0] == 0:
         return FeatureSums(zeros, zeros.clone())
