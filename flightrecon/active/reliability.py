@@ -58,7 +58,7 @@ class ReliabilityConfig:
                              "of the observed depth, where a pixel mixes two surfaces and the observed normal is "
                              "undefined (the color term stays); off: the paper's loss image at every pixel")
     measurement_prior: str = option("one", choices=("one", "depth_noise"))
-    gain_floor: float = option(1e-3, 0.0, 1e6, doc="scoring: a first pass stops a pixel once its transmittance times "
+    gain_floor: float = option(0.01, 0.0, 1e6, doc="scoring: a first pass stops a pixel once its transmittance times "
                                "the largest information gain left behind it is below this, bounding each candidate's "
                                "MI from above and below; "
                                "candidates that can still win are scored again exactly, so the chosen view is the "
