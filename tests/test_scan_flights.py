@@ -1,6 +1,7 @@
 """12-frame flights with no scene flag in scan-like meshes of four kinds (tests/scan_corpus.py): a
-scan in its first camera's frame with holes, no ceiling and furniture at the default take-off; one
-in a camera frame with a partial ceiling; one stored -y-up without a ceiling; one z-up with
+scan in its first camera's frame with holes, no ceiling and furniture at the default take-off (at
+the CPU default's 320x240, so the frames it streams in flight are reduced to planner.look_width);
+one in a camera frame with a partial ceiling; one stored -y-up without a ceiling; one z-up with
 furniture where the drone would take off. Each: no contact, the flight keeps its safety margin (its
 lowest clearance to the true scene, printed, is at least planner.safety_margin), the drone moves, and
 the evaluation is finite with the views that saw no surface left out and counted."""
@@ -21,6 +22,8 @@ SMALL = ["camera.width=160", "camera.height=120", "selector.scoring_width=80", "
          "mapper.k_new=10", "mapper.k_replay=5", "budget.frames=12", "evaluation.views=16", "evaluation.every=0",
          "output.record=false"]
 CORPUS = ["office0-seed4-camera.obj", "room0-seed0-camera.ply", "room2-seed3-z-up.ply"]
+AT_320 = {"office0-seed4-camera.obj": ["camera.width=320", "camera.height=240", "selector.scoring_width=160",
+                                       "selector.scoring_height=120"]}
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +40,7 @@ def meshes(tmp_path_factory) -> dict:
 @pytest.mark.slow
 @pytest.mark.parametrize("name", CORPUS + ["room1-minus-y-up.ply"])
 def test_a_flight_in_a_scan_is_clean_moves_and_evaluates(meshes, name, tmp_path):
-    cfg = load_config("default", SMALL + [f"scene.path={meshes[name]}"])
+    cfg = load_config("default", SMALL + AT_320.get(name, []) + [f"scene.path={meshes[name]}"])
     metrics = Mission(cfg, tmp_path, progress=False).run()
     with open(tmp_path / "frames.csv") as f:
         clearance = [float(r["min_clearance"]) for r in csv.DictReader(f) if r["min_clearance"] not in ("", "nan")]
