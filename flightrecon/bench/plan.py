@@ -4,9 +4,10 @@ For each scene, representative poses are sampled in the free space of the ground
 online map is built the way a flight builds it: MuJoCo renders a depth frame at four headings from
 every pose, each integrated into the occupancy map (timed), with the drone's body volume marked
 free. At each of those headings a streamed frame (planner.look_hz) is timed too, render and update,
-at `planner.look_width` and, its peer, at the frame's full size, on a copy of the map. The full library is then checked from every pose, on the online map and on the ground truth.
-The CPU time of one check and the load average are reported too: on a shared machine the wall
-time alone says little.
+at `planner.look_width` and, its peer, at the frame's full size, on a copy of the map. The full
+library is then checked from every pose, on the online map and on the ground truth. The CPU time
+of one check and the load average are reported too: on a shared machine the wall time alone says
+little.
 """
 
 from __future__ import annotations
