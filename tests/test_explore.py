@@ -11,7 +11,7 @@ from flightrecon.active.protocol import Observation
 from flightrecon.active.registry import make_selector
 from flightrecon.geometry import camera_pose, intrinsics
 from flightrecon.mission import Mission
-from flightrecon.planning.occupancy import OccupancyMap
+from flightrecon.planning.occupancy import OCCUPIED, OccupancyMap
 from flightrecon.scenario import load_config
 
 TINY = ["camera.width=48", "camera.height=36", "selector.scoring_width=24", "selector.scoring_height=18",
@@ -79,6 +79,8 @@ def test_a_pixel_without_depth_carves_free_space_out_to_the_range():
     o = np.array([[0.05, 0.05, 1.05]])
     assert occ.unknown_before_occupied(o, right, 0.3, 5.0)[0] == pytest.approx(0.0, abs=0.051)
     assert occ.unknown_before_occupied(o, left, 0.3, 5.0)[0] <= 0.15  # up to the wall, then its band
+    end = o + 5.2 * (T[:3, :3] @ np.array([0.3, 0.0, 1.0]))  # z-depth 5.2 m along a right-half ray
+    assert occ.state(end)[0] != OCCUPIED  # where its carving ends no surface was seen
 
 
 def _wall_observation(cfg, mission):

@@ -82,9 +82,8 @@ def frontier_pixels(occupancy: OccupancyMap, T_wc: np.ndarray, K: np.ndarray, wi
 def integrate_seen_space(occupancy: OccupancyMap, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray,
                          beyond: float) -> None:
     """Add a depth frame to the occupancy map; a pixel with no return (0) saw no surface within the
-    camera's range, so its ray carves free space out to `beyond` m."""
-    depth = np.asarray(depth, np.float32)
-    occupancy.integrate(np.where(depth > 0, depth, np.float32(beyond)), K, T_wc)
+    camera's range, so its ray carves free space out to `beyond` m (and marks no surface there)."""
+    occupancy.integrate(depth, K, T_wc, no_return=beyond)
 
 
 class GaussMI2DExplore(GaussMI2D):
