@@ -1,6 +1,7 @@
 """The plan's endpoints (plan.md) from the re-flown runs and the committed confirmatory runs of the
 same units: `python results/safety/write_comparison.py` from the repository root writes
-comparison.md beside this file.
+comparison.md beside this file, and the sweep's tables and figures over all the plan's runs into
+runs/sweep_cpu/report (the plan's two sweeps each write a report of their own runs only).
 
 Primary: per method, flights inside the margin and flights with a contact, before (the committed
 runs of these 12 units) and now. Secondary: PSNR at frame 90, new - committed on the same unit, mean
@@ -11,7 +12,7 @@ import math
 from pathlib import Path
 
 from flightrecon.evaluation.intervals import mean_interval, paired_difference
-from flightrecon.experiments.report import collect
+from flightrecon.experiments.report import collect, write_figures, write_tables
 
 HERE = Path(__file__).resolve().parent
 NEW = HERE / "runs" / "sweep_cpu"
@@ -21,8 +22,11 @@ UNITS = [f"{s}.v5" for s in ("office0", "office1", "office2", "office3", "office
 METHODS = ["gaussmi2d_frontier", "gaussmi2d", "activegs", "activegs_native", "fisherrf", "gaussmi", "random"]
 
 
-def _records(root: Path) -> dict[tuple[str, str], dict]:
-    recs = collect([root / u / m / "seed0" for u in UNITS for m in METHODS])
+def _records(root: Path) -> list[dict]:
+    return collect([root / u / m / "seed0" for u in UNITS for m in METHODS])
+
+
+def _by_unit(recs: list[dict]) -> dict[tuple[str, str], dict]:
     return {(r["scene"], r["method"]): r for r in recs}
 
 
@@ -33,7 +37,11 @@ def _safety_cells(recs: list[dict]) -> list[str]:
 
 
 def main() -> None:
-    new, old = _records(NEW), _records(OLD)
+    flown = _records(NEW)
+    report = NEW / "report"
+    write_tables(flown, report)
+    write_figures(flown, report)
+    new, old = _by_unit(flown), _by_unit(_records(OLD))
     lines = [f"# The plan's endpoints ({len(new)} of {len(UNITS) * len(METHODS)} re-flown runs)", "",
              "Before: the committed confirmatory runs (results/confirm/runs) of the same 12 units; now: "
              "runs/sweep_cpu here. 'Inside margin': flights with a frame below planner.safety_margin after "
