@@ -337,16 +337,20 @@ def write_tables(recs: list[dict], out: Path, failed: dict[str, str] | None = No
     return paths
 
 
+def safety_cells(recs: list[dict]) -> list[str]:
+    """Of these runs: how many went inside their own safety margin (frames.csv, take-off excluded),
+    in how many frames, how close the closest came, and how many touched the scene."""
+    lows = [r["margin"].lowest for r in recs if not math.isnan(r["margin"].lowest)]
+    return [str(sum(not r["margin"].kept for r in recs)), str(sum(len(r["margin"].breach_frames) for r in recs)),
+            _fmt(min(lows), 3) if lows else "n/a", str(sum(r["contacts"] > 0 for r in recs))]
+
+
 def _write_safety_table(recs: list[dict], out: Path, note: str) -> list[Path]:
-    """Per method: how many flights went inside their own safety margin (frames.csv, take-off
-    excluded), in how many frames, how close the closest came, and how many touched the scene."""
+    """Per method: its runs and their `safety_cells`."""
     rows = []
     for m in _methods(recs):
         mine = [r for r in recs if r["method"] == m]
-        lows = [r["margin"].lowest for r in mine if not math.isnan(r["margin"].lowest)]
-        rows.append([m, str(len(mine)), str(sum(not r["margin"].kept for r in mine)),
-                     str(sum(len(r["margin"].breach_frames) for r in mine)),
-                     _fmt(min(lows), 3) if lows else "n/a", str(sum(r["contacts"] > 0 for r in mine))])
+        rows.append([m, str(len(mine))] + safety_cells(mine))
     return _write_table(out, "safety", ["Method", "Runs", "Runs below margin", "Frames below margin",
                                         "Lowest clearance [m]", "Runs with contacts"], rows,
                         f"Safety: flights that went inside their planner.safety_margin after take-off, and "

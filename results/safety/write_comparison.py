@@ -8,11 +8,10 @@ runs of these 12 units) and now. Secondary: PSNR at frame 90, new - committed on
 and 95% t-interval over the units; and whether the new mean lies inside the committed runs' own 95%
 interval over the same units."""
 
-import math
 from pathlib import Path
 
 from flightrecon.evaluation.intervals import mean_interval, paired_difference
-from flightrecon.experiments.report import collect, write_figures, write_tables
+from flightrecon.experiments.report import collect, safety_cells, write_figures, write_tables
 
 HERE = Path(__file__).resolve().parent
 NEW = HERE / "runs" / "sweep_cpu"
@@ -31,9 +30,9 @@ def _by_unit(recs: list[dict]) -> dict[tuple[str, str], dict]:
 
 
 def _safety_cells(recs: list[dict]) -> list[str]:
-    lows = [r["margin"].lowest for r in recs if not math.isnan(r["margin"].lowest)]
-    return [str(sum(not r["margin"].kept for r in recs)), str(sum(r["contacts"] > 0 for r in recs)),
-            f"{min(lows):.3f}" if lows else "n/a"]
+    """Flights inside the margin, flights with contacts, lowest clearance (the report's counts)."""
+    below, _, lowest, contacts = safety_cells(recs)
+    return [below, contacts, lowest]
 
 
 def main() -> None:
