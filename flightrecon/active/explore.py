@@ -66,17 +66,27 @@ def frontier_pixels(occupancy: OccupancyMap, T_wc: np.ndarray, K: np.ndarray, wi
     """Per camera T_wc [C,4,4]: the pixels (of width x height with intrinsics K) whose ray crosses at
     least `min_unknown` m of unknown space between t_min and t_max m before meeting an occupied
     voxel. One ray every `stride` pixels in each direction stands for stride^2 pixels."""
+    entries = frontier_entries(occupancy, T_wc, K, width, height, t_min=t_min, t_max=t_max,
+                               min_unknown=min_unknown, stride=stride)
+    return np.isfinite(entries[..., 0]).sum(axis=1) * float(stride * stride)
+
+
+def frontier_entries(occupancy: OccupancyMap, T_wc: np.ndarray, K: np.ndarray, width: int, height: int, *,
+                     t_min: float, t_max: float, min_unknown: float, stride: int = 1) -> np.ndarray:
+    """World points [C,R,3] where each counted ray of `frontier_pixels` (one per stride x stride
+    pixels) enters unknown space; nan for a ray that does not count."""
     rays = pixel_rays(width, height, np.asarray(K, float))[stride // 2::stride, stride // 2::stride].reshape(-1, 3)
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     poses = np.asarray(T_wc, float).reshape(-1, 4, 4)
-    counts = np.zeros(len(poses))
+    entries = np.full((len(poses), len(rays), 3), np.nan)
     for s in range(0, len(poses), CAMERAS_PER_CALL):
         P = poses[s:s + CAMERAS_PER_CALL]
         dirs = np.einsum("cij,rj->cri", P[:, :3, :3], rays).reshape(-1, 3)
         origins = np.repeat(P[:, :3, 3], len(rays), axis=0)
-        unknown = occupancy.unknown_before_occupied(origins, dirs, t_min, t_max).reshape(len(P), len(rays))
-        counts[s:s + len(P)] = (unknown >= min_unknown).sum(axis=1) * stride * stride
-    return counts
+        unknown, t = occupancy.unknown_entries(origins, dirs, t_min, t_max)
+        t = np.where(unknown >= min_unknown, t, np.nan)
+        entries[s:s + len(P)] = (origins + dirs * t[:, None]).reshape(len(P), len(rays), 3)
+    return entries
 
 
 def integrate_seen_space(occupancy: OccupancyMap, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray,

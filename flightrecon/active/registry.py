@@ -20,6 +20,7 @@ from flightrecon.active.activegs_native import ActiveGSNative
 from flightrecon.active.baselines import ActiveGSSelector, FisherRFSelector, GaussMISelector
 from flightrecon.active.explore import GaussMI2DExplore
 from flightrecon.active.frontier_mi import GaussMI2DFrontier
+from flightrecon.active.lookahead import GaussMI2DLookahead
 from flightrecon.active.protocol import Selector
 from flightrecon.active.selectors import (GaussMI2D, GaussMI2DColorOnly, GaussMI2DEdgeMask, GaussMI2DNoWeight,
                                           GaussMI2DOneSided, RandomSelector)
@@ -30,8 +31,8 @@ log = logging.getLogger(__name__)
 
 ENTRY_POINT_GROUP = "flightrecon.selectors"
 ROLES = ("method", "baseline", "floor", "ablation")
-BUILT_IN: tuple[type[Selector], ...] = (GaussMI2D, GaussMI2DExplore, GaussMI2DFrontier, GaussMISelector,
-                                        FisherRFSelector, ActiveGSSelector, ActiveGSNative, RandomSelector,
+BUILT_IN: tuple[type[Selector], ...] = (GaussMI2D, GaussMI2DExplore, GaussMI2DLookahead, GaussMI2DFrontier,
+                                        GaussMISelector, FisherRFSelector, ActiveGSSelector, ActiveGSNative, RandomSelector,
                                         GaussMI2DNoWeight, GaussMI2DOneSided, GaussMI2DColorOnly, GaussMI2DEdgeMask)
 _SELECTORS: dict[str, type[Selector]] = {}
 _PLUGIN_ERRORS: dict[str, str] = {}  # entry point -> why it was left out

@@ -192,15 +192,22 @@ class OccupancyMap:
         """Length (m) of unknown space each ray crosses between t_min and t_max before its first
         occupied voxel, sampled every half voxel; origins and unit directions are (R, 3). Outside
         the grid counts as unknown, as in `state`."""
+        return self.unknown_entries(origins, directions, t_min, t_max)[0]
+
+    def unknown_entries(self, origins: np.ndarray, directions: np.ndarray, t_min: float,
+                        t_max: float) -> tuple[np.ndarray, np.ndarray]:
+        """`unknown_before_occupied` of each ray (R,), and the distance (R,) of its first unknown
+        sample before the first occupied voxel, where it enters the unseen (nan: none)."""
         o = np.asarray(origins, float).reshape(-1, 3)
         d = np.asarray(directions, float).reshape(-1, 3)
         step = 0.5 * self.voxel_size
         t = t_min + step * (np.arange(max(0, int(np.ceil((t_max - t_min) / step)))) + 0.5)
         if len(t) == 0 or len(o) == 0:
-            return np.zeros(len(o))
+            return np.zeros(len(o)), np.full(len(o), np.nan)
         states = self.state(o[:, None, :] + d[:, None, :] * t[None, :, None]).reshape(len(o), len(t))
-        before = np.cumsum(states == OCCUPIED, axis=1) == 0
-        return ((states == UNKNOWN) & before).sum(axis=1) * step
+        unknown = (states == UNKNOWN) & (np.cumsum(states == OCCUPIED, axis=1) == 0)
+        entry = np.where(unknown.any(axis=1), t[np.argmax(unknown, axis=1)], np.nan)
+        return unknown.sum(axis=1) * step, entry
 
     def occupied(self) -> np.ndarray:
         return self.surface.copy()
