@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from flightrecon.active.explore import PRIOR_GAIN, GaussMI2DExplore, frontier_pixels, integrate_seen_space
+from flightrecon.active.explore import PRIOR_GAIN, GaussMI2DExplore, frontier_entries, integrate_seen_space
 from flightrecon.active.protocol import Observation
 from flightrecon.active.registry import make_selector
-from flightrecon.geometry import camera_pose, intrinsics
+from flightrecon.geometry import camera_pose, intrinsics, pixel_rays
 from flightrecon.mission import Mission
 from flightrecon.planning.occupancy import OCCUPIED, OccupancyMap
 from flightrecon.scenario import load_config
@@ -17,6 +17,11 @@ from flightrecon.scenario import load_config
 TINY = ["camera.width=48", "camera.height=36", "selector.scoring_width=24", "selector.scoring_height=18",
         "mapper.k_new=5", "mapper.k_replay=2", "budget.frames=4", "budget.initial_views=1", "evaluation.views=2",
         "evaluation.every=0", "output.record=false", "selector.method=gaussmi2d_explore"]
+
+
+def frontier_pixels(occ, T, K, W, H, *, stride=1, **kw) -> np.ndarray:
+    """Pixels [C] whose rays count (one ray stands for stride^2 pixels)."""
+    return np.isfinite(frontier_entries(occ, T, K, W, H, stride=stride, **kw)[..., 0]).sum(axis=1) * stride**2
 
 
 def _half_known_room() -> OccupancyMap:
@@ -34,18 +39,23 @@ def _half_known_room() -> OccupancyMap:
     return occ
 
 
-def test_unknown_before_occupied_measures_the_unseen_space_each_ray_crosses():
+def test_unknown_ends_measures_the_unseen_space_each_ray_ends_in():
     occ = _half_known_room()
     o = np.array([[0.05, 0.05, 1.05]] * 4)
     d = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     o[1, 1] = -0.55  # along -y inside the free half
     o[2, 1] = -0.55  # along +x at y < 0: past x = 2 nothing was seen
-    got = occ.unknown_before_occupied(o, d, t_min=0.0, t_max=3.0)
+    got, entry = occ.unknown_ends(o, d, t_min=0.0, t_max=3.0)
     assert got[0] == pytest.approx(0.1, abs=0.051)  # only the band in front of the wall
     assert got[1] == 0.0  # free all the way (y down to -3.55 stays inside the grid)
     assert got[2] == pytest.approx(3.05 - 2.0, abs=0.051)
     assert got[3] == pytest.approx(4.05 - 3.0, abs=0.051)  # straight up it leaves the grid: unknown
-    assert occ.unknown_before_occupied(o[:0], d[:0], 0.0, 3.0).shape == (0,)
+    assert entry[2] == pytest.approx(2.0 - 0.05, abs=0.051) and np.isnan(entry[1])
+    assert occ.unknown_ends(o[:0], d[:0], 0.0, 3.0)[0].shape == (0,)
+    occ.observed[occ._index(np.array([[2.55, -0.55, 1.05]]))[0].tolist()] = True  # a known voxel inside the unseen
+    past, entry = occ.unknown_ends(o[2:3], d[2:3], t_min=0.0, t_max=3.0)
+    assert past[0] == pytest.approx(3.05 - 2.6, abs=0.051)  # only the run after it: the space the ray ends in
+    assert entry[0] == pytest.approx(2.6 - 0.05, abs=0.051)
 
 
 def test_frontier_pixels_count_the_rays_into_unknown_space_not_the_band_before_a_wall():
@@ -77,10 +87,38 @@ def test_a_pixel_without_depth_carves_free_space_out_to_the_range():
     left = camera_pose(np.array([0.05, 0.05, 1.05]), 0.0)[:3, :3] @ np.array([-0.3, 0.0, 1.0])
     left = (left / np.linalg.norm(left))[None]
     o = np.array([[0.05, 0.05, 1.05]])
-    assert occ.unknown_before_occupied(o, right, 0.3, 5.0)[0] == pytest.approx(0.0, abs=0.051)
-    assert occ.unknown_before_occupied(o, left, 0.3, 5.0)[0] <= 0.15  # up to the wall, then its band
+    assert occ.unknown_ends(o, right, 0.3, 5.0)[0][0] == pytest.approx(0.0, abs=0.051)
+    assert occ.unknown_ends(o, left, 0.3, 5.0)[0][0] <= 0.15  # up to the wall, then its band
     end = o + 5.2 * (T[:3, :3] @ np.array([0.3, 0.0, 1.0]))  # z-depth 5.2 m along a right-half ray
     assert occ.state(end)[0] != OCCUPIED  # where its carving ends no surface was seen
+
+
+def _box_room_depth(T: np.ndarray, K: np.ndarray, W: int, H: int) -> np.ndarray:
+    """Exact z-depth from camera T of a 5 x 5 x 2.6 m box room (x in [-1, 4], y in [-2.5, 2.5])."""
+    rays = pixel_rays(W, H, K).reshape(-1, 3)
+    d, o = rays @ T[:3, :3].T, T[:3, 3]
+    hits = []
+    for axis, plane in [(0, -1.0), (0, 4.0), (1, -2.5), (1, 2.5), (2, 0.0), (2, 2.6)]:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (plane - o[axis]) / d[:, axis]
+        hits.append(np.where(t > 0, t, np.inf))
+    return np.min(hits, axis=0).reshape(H, W).astype(np.float32)  # rays have z = 1: t is the z-depth
+
+
+def test_a_view_just_integrated_sees_nothing_unseen_even_at_grazing_floors_and_ceilings():
+    occ = OccupancyMap(np.array([[-1.5, -3.0, -0.5], [4.5, 3.0, 3.1]]), voxel_size=0.1)
+    W, H = 160, 120
+    K = intrinsics(W, H, 90.0)
+    T = camera_pose(np.array([0.05, 0.05, 1.05]), 0.0)
+    integrate_seen_space(occ, _box_room_depth(T, K, W, H), K, T, beyond=5.2)
+    kw = dict(t_min=0.05, t_max=5.0, min_unknown=0.3)
+    Ks = intrinsics(80, 60, 90.0)
+    assert frontier_pixels(occ, T[None], Ks, 80, 60, **kw)[0] == 0  # the floor and ceiling run to 4 m at grazing angles
+    behind = camera_pose(np.array([0.05, 0.05, 1.05]), math.pi)[None]
+    assert frontier_pixels(occ, behind, Ks, 80, 60, **kw)[0] > 0.95 * 80 * 60  # nothing behind it was seen
+    planner_map = OccupancyMap(occ.bounds, voxel_size=0.1)  # the footprint test, safe for flying, carves less
+    planner_map.integrate(_box_room_depth(T, K, W, H), K, T, no_return=5.2)
+    assert planner_map.observed.sum() < occ.observed.sum()
 
 
 def _wall_observation(cfg, mission):

@@ -4,10 +4,10 @@ The paper's MI (Eq. 22) sums over existing splats only, so a view of never-seen 
 nothing until a frame has put splats there; the diagnosis flights (results/diagnosis/) show the
 paper's method reaching less of the room's surface than ActiveGS for that reason. This variant
 treats the unknown space at the frontier of an occupancy map as surface not yet reconstructed:
-each scoring pixel whose ray crosses unknown space (UNKNOWN_VOXELS of it, so the thin uncarved band
-in front of every seen surface does not count) before an occupied voxel, within
-`explore.range`, counts as one more splat with the prior reliability P0 = 0.5 (the
-paper's initial value) and full transmittance. Its gain is Eq. 21 with
+each scoring pixel whose ray ends in unknown space, within `explore.range` (the last UNKNOWN_VOXELS
+before its first occupied voxel, or before the range, are unknown: the thin band left in front of
+every seen surface does not count, nor unseen space the ray leaves again), counts as one more
+splat with the prior reliability P0 = 0.5 (the paper's initial value) and full transmittance. Its gain is Eq. 21 with
 that prior, -|w| log 0.5, where the unknown surface's normal is unknown: |w| is replaced by its
 mean over isotropic normals, E|cos| = 1/2. The splats' MI is the paper's.
 
@@ -18,8 +18,11 @@ by splats whose evidence at occlusion edges stayed negative (93% of the chosen v
 on edge pixels); with the mask it did not (results/ranking/dev_sceneseed1).
 
 The occupancy map is the selector's own (planning.occupancy.OccupancyMap at `explore.voxel`,
-a box of `explore.extent` around the first camera), fed every captured depth frame; it
-does not share the planner's, which may be the ground-truth scene. A pixel with no depth return saw
+a box of `explore.extent` around the first camera), fed every captured depth frame by ray casting
+(`integrate_rays`); it does not share the planner's, which may be the ground-truth scene. The
+planner's footprint test, safe for flying, leaves space uncarved wherever a voxel's footprint also
+holds nearer pixels: near every floor and ceiling seen at a grazing angle and along the image's
+edges. Counted as unseen, that space drew the drone back to views it had already taken. A pixel with no depth return saw
 no surface within the camera's range, so its ray carves free space out to `explore.range` (the
 planner's map, more careful, carves nothing there); without that, space seen through a window or
 door would stay unknown and draw the drone forever. Rays start at the camera's near plane: a
@@ -42,7 +45,7 @@ from flightrecon.geometry import pixel_rays
 from flightrecon.planning.occupancy import OccupancyMap
 
 PRIOR_GAIN = -0.5 * math.log(0.5)  # -E|w| log P0 per pixel: Eq. 21 for unseen surface
-UNKNOWN_VOXELS = 3  # unknown space a ray must cross to count: more than the uncarved band of about one
+UNKNOWN_VOXELS = 3  # unknown space a ray must end in to count: more than the uncarved band of about one
 # voxel that the occupancy update leaves in front of every seen surface
 CAMERAS_PER_CALL = 16  # candidates whose rays are marched together (bounds the sample array)
 
@@ -61,20 +64,12 @@ class ExploreConfig:
                   "selector.explore_range": "range", "selector.explore_stride": "stride"}
 
 
-def frontier_pixels(occupancy: OccupancyMap, T_wc: np.ndarray, K: np.ndarray, width: int, height: int, *,
-                    t_min: float, t_max: float, min_unknown: float, stride: int = 1) -> np.ndarray:
-    """Per camera T_wc [C,4,4]: the pixels (of width x height with intrinsics K) whose ray crosses at
-    least `min_unknown` m of unknown space between t_min and t_max m before meeting an occupied
-    voxel. One ray every `stride` pixels in each direction stands for stride^2 pixels."""
-    entries = frontier_entries(occupancy, T_wc, K, width, height, t_min=t_min, t_max=t_max,
-                               min_unknown=min_unknown, stride=stride)
-    return np.isfinite(entries[..., 0]).sum(axis=1) * float(stride * stride)
-
-
 def frontier_entries(occupancy: OccupancyMap, T_wc: np.ndarray, K: np.ndarray, width: int, height: int, *,
                      t_min: float, t_max: float, min_unknown: float, stride: int = 1) -> np.ndarray:
-    """World points [C,R,3] where each counted ray of `frontier_pixels` (one per stride x stride
-    pixels) enters unknown space; nan for a ray that does not count."""
+    """Per camera T_wc [C,4,4], one ray every `stride` pixels in each direction of width x height
+    (intrinsics K): the world point [C,R,3] where the ray enters the unknown space it ends in, when
+    that space is at least `min_unknown` m long between t_min and t_max m
+    (OccupancyMap.unknown_ends); nan for a ray that does not count."""
     rays = pixel_rays(width, height, np.asarray(K, float))[stride // 2::stride, stride // 2::stride].reshape(-1, 3)
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     poses = np.asarray(T_wc, float).reshape(-1, 4, 4)
@@ -83,7 +78,7 @@ def frontier_entries(occupancy: OccupancyMap, T_wc: np.ndarray, K: np.ndarray, w
         P = poses[s:s + CAMERAS_PER_CALL]
         dirs = np.einsum("cij,rj->cri", P[:, :3, :3], rays).reshape(-1, 3)
         origins = np.repeat(P[:, :3, 3], len(rays), axis=0)
-        unknown, t = occupancy.unknown_entries(origins, dirs, t_min, t_max)
+        unknown, t = occupancy.unknown_ends(origins, dirs, t_min, t_max)
         t = np.where(unknown >= min_unknown, t, np.nan)
         entries[s:s + len(P)] = (origins + dirs * t[:, None]).reshape(len(P), len(rays), 3)
     return entries
@@ -93,7 +88,7 @@ def integrate_seen_space(occupancy: OccupancyMap, depth: np.ndarray, K: np.ndarr
                          beyond: float) -> None:
     """Add a depth frame to the occupancy map; a pixel with no return (0) saw no surface within the
     camera's range, so its ray carves free space out to `beyond` m (and marks no surface there)."""
-    occupancy.integrate(depth, K, T_wc, no_return=beyond)
+    occupancy.integrate_rays(depth, K, T_wc, no_return=beyond)
 
 
 class GaussMI2DExplore(GaussMI2D):
@@ -117,15 +112,21 @@ class GaussMI2DExplore(GaussMI2D):
         self.occupancy.mark_free_sphere(center, self.cfg.drone.body_radius)  # its own body proves this empty
         return diag
 
-    def frontier_gain(self, poses: np.ndarray) -> np.ndarray:
-        """The unseen-surface term [C] of each candidate camera T_wc [C,4,4], in MI units."""
-        if self.occupancy is None:
-            return np.zeros(len(poses))
+    def frontier_entries(self, poses: np.ndarray) -> np.ndarray:
+        """`frontier_entries` [C,R,3] of candidate cameras T_wc [C,4,4] at the scoring resolution, one
+        ray per `explore.stride` pixels in each direction."""
         s, c = self.cfg.explore, self.cfg.selector
-        px = frontier_pixels(self.occupancy, poses, self.K_score.numpy(), c.scoring_width, c.scoring_height,
-                             t_min=self.cfg.camera.near, t_max=s.range, min_unknown=UNKNOWN_VOXELS * s.voxel,
-                             stride=s.stride)
-        return PRIOR_GAIN * px
+        if self.occupancy is None:
+            return np.full((len(poses), 0, 3), np.nan)
+        return frontier_entries(self.occupancy, poses, self.K_score.numpy(), c.scoring_width, c.scoring_height,
+                                t_min=self.cfg.camera.near, t_max=s.range, min_unknown=UNKNOWN_VOXELS * s.voxel,
+                                stride=s.stride)
+
+    def frontier_gain(self, poses: np.ndarray) -> np.ndarray:
+        """The unseen-surface term [C] of each candidate camera T_wc [C,4,4], in MI units: a ray stands
+        for stride^2 pixels."""
+        counted = np.isfinite(self.frontier_entries(poses)[..., 0]).sum(axis=1)
+        return PRIOR_GAIN * self.cfg.explore.stride ** 2 * counted
 
     def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         offset = torch.as_tensor(self.frontier_gain(poses), dtype=torch.float64)

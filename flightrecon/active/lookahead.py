@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from flightrecon.active.explore import PRIOR_GAIN, UNKNOWN_VOXELS, GaussMI2DExplore, frontier_entries
+from flightrecon.active.explore import PRIOR_GAIN, GaussMI2DExplore
 from flightrecon.active.gaussmi2d import depth_noise_prior, information_gain
 from flightrecon.active.protocol import MapView, Observation
 from flightrecon.active.reliability import observation_weights, splat_normals
@@ -121,18 +121,13 @@ class GaussMI2DLookahead(GaussMI2DExplore):
     def frontier_items(self, poses: np.ndarray) -> np.ndarray:
         """Per camera T_wc [M,4,4]: the frontier gain of its counted rays, binned by the `lookahead.cell`
         where each ray enters unknown space, float64 [M, cells] (cells any of them reaches)."""
-        if self.occupancy is None:
-            return np.zeros((len(poses), 0))
-        s, c = self.cfg.explore, self.cfg.selector
-        entries = frontier_entries(self.occupancy, poses, self.K_score.numpy(), c.scoring_width, c.scoring_height,
-                                   t_min=self.cfg.camera.near, t_max=s.range, min_unknown=UNKNOWN_VOXELS * s.voxel,
-                                   stride=s.stride)
+        entries = self.frontier_entries(poses)
         counted = np.isfinite(entries[..., 0])
         cam = np.nonzero(counted)[0]
         cells = np.floor(entries[counted] / self.cfg.lookahead.cell).astype(np.int64)
         _, cell = np.unique(cells, axis=0, return_inverse=True)
         out = np.zeros((len(poses), int(cell.max()) + 1 if len(cell) else 0))
-        np.add.at(out, (cam, cell.reshape(-1)), PRIOR_GAIN * s.stride ** 2)
+        np.add.at(out, (cam, cell.reshape(-1)), PRIOR_GAIN * self.cfg.explore.stride ** 2)
         return out
 
     def first_leg_times(self, poses: np.ndarray, lengths: np.ndarray | None) -> np.ndarray:

@@ -33,12 +33,13 @@ import numpy as np
 from scipy import ndimage
 
 from flightrecon.errors import DataError
-from flightrecon.geometry import backproject_depth, invert_pose
+from flightrecon.geometry import backproject_depth, invert_pose, pixel_rays
 from flightrecon.planning.distance_field import DistanceField, grid_for_bounds
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 # half-widths (px) a voxel's footprint is rounded up to; the last caps it (a voxel at the lens covers the image)
 FOOTPRINT_PX = np.array([1, 2, 3, 4, 5, 6, 7, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, 64])
+RAYS_PER_BLOCK = 4096  # rays cast together by integrate_rays (bounds its sample array)
 
 
 class OccupancyMap:
@@ -75,20 +76,9 @@ class OccupancyMap:
         camera, which returns 0 only where nothing lies within its far plane (a scan's holes, its
         missing ceiling). Non-finite depths are no evidence; a frame of the wrong shape or a
         non-finite pose is a DataError."""
-        depth = np.asarray(depth, np.float32)
-        if depth.ndim != 2 or np.asarray(K).shape != (3, 3) or np.asarray(T_wc).shape != (4, 4):
-            raise DataError(f"occupancy update needs an HxW depth, a 3x3 K and a 4x4 pose; got shapes "
-                            f"{depth.shape}, {np.asarray(K).shape}, {np.asarray(T_wc).shape}")
-        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(T_wc))):
-            raise DataError("occupancy update: the camera pose or intrinsics hold NaN or infinity")
+        depth = _checked_frame(depth, K, T_wc)
         h = self.voxel_size
-        pts, valid = backproject_depth(depth, K, T_wc)
-        hit = np.zeros(self.shape, bool)
-        if len(pts):
-            idx = self._index(pts)
-            ok = self._inside(idx)
-            hit[idx[ok, 0], idx[ok, 1], idx[ok, 2]] = True
-        evidence = np.where(valid, depth, np.where(depth == 0, np.float32(no_return), 0.0)).astype(np.float32)
+        hit, evidence = self._hits(depth, K, T_wc, no_return)
         max_d = float(min(evidence.max(), self.free_range)) if evidence.size else 0.0
         if max_d <= 0:
             self._apply(hit, None)
@@ -133,6 +123,46 @@ class OccupancyMap:
         free = np.zeros(self.shape, bool)
         free[sel[0][passed] + lo[0], sel[1][passed] + lo[1], sel[2][passed] + lo[2]] = True
         self._apply(hit, free)
+
+    def integrate_rays(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, no_return: float = 0.0,
+                       max_width: int = 160) -> None:
+        """`integrate` with OctoMap's ray casting instead of the footprint test: every voxel a pixel's
+        ray passes more than a voxel before its measured surface is free (rays of every k-th pixel,
+        k = ceil(W / max_width)). Thin rims seen edge-on can be carved, so a map for planning keeps
+        `integrate`; near surfaces seen at a grazing angle, where every footprint also holds nearer
+        pixels, this carves what the rays saw, which a map that estimates the unseen needs."""
+        depth = _checked_frame(depth, K, T_wc)
+        hit, evidence = self._hits(depth, K, T_wc, no_return)
+        k = max(1, -(-depth.shape[1] // max_width))
+        rays = pixel_rays(depth.shape[1], depth.shape[0], np.asarray(K, float))[k // 2::k, k // 2::k].reshape(-1, 3)
+        reach = evidence[k // 2::k, k // 2::k].reshape(-1).astype(float)
+        keep = reach > 0
+        reach = np.minimum(reach[keep], self.free_range) * np.linalg.norm(rays[keep], axis=1) - self.voxel_size
+        dirs = rays[keep] / np.linalg.norm(rays[keep], axis=1, keepdims=True) @ np.asarray(T_wc, float)[:3, :3].T
+        step = 0.5 * self.voxel_size
+        free = np.zeros(self.shape, bool)
+        for s in range(0, len(dirs), RAYS_PER_BLOCK):
+            d, r = dirs[s:s + RAYS_PER_BLOCK], reach[s:s + RAYS_PER_BLOCK]
+            t = step * (np.arange(max(0, int(np.ceil(r.max(initial=0.0) / step)))) + 0.5)
+            along = t[None, :] < r[:, None]
+            pts = T_wc[:3, 3] + d[:, None, :] * t[None, :, None]
+            idx = self._index(pts[along])
+            idx = idx[self._inside(idx)]
+            free[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+        self._apply(hit, free)
+
+    def _hits(self, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray, no_return: float) -> tuple[np.ndarray,
+                                                                                                np.ndarray]:
+        """The voxels holding a measured point, and each pixel's evidence: its depth, `no_return` for a
+        pixel without a return, 0 for no evidence."""
+        pts, valid = backproject_depth(depth, K, T_wc)
+        hit = np.zeros(self.shape, bool)
+        if len(pts):
+            idx = self._index(pts)
+            ok = self._inside(idx)
+            hit[idx[ok, 0], idx[ok, 1], idx[ok, 2]] = True
+        evidence = np.where(valid, depth, np.where(depth == 0, np.float32(no_return), 0.0)).astype(np.float32)
+        return hit, evidence
 
     def mark_free_sphere(self, center: np.ndarray, radius: float) -> None:
         """Declare the unknown voxels within `radius` of `center` free (the volume the drone occupies:
@@ -187,17 +217,14 @@ class OccupancyMap:
         out[ok] = np.where(self.surface[i, j, k], OCCUPIED, np.where(self.observed[i, j, k], FREE, UNKNOWN))
         return out
 
-    def unknown_before_occupied(self, origins: np.ndarray, directions: np.ndarray, t_min: float,
-                                t_max: float) -> np.ndarray:
-        """Length (m) of unknown space each ray crosses between t_min and t_max before its first
-        occupied voxel, sampled every half voxel; origins and unit directions are (R, 3). Outside
-        the grid counts as unknown, as in `state`."""
-        return self.unknown_entries(origins, directions, t_min, t_max)[0]
-
-    def unknown_entries(self, origins: np.ndarray, directions: np.ndarray, t_min: float,
-                        t_max: float) -> tuple[np.ndarray, np.ndarray]:
-        """`unknown_before_occupied` of each ray (R,), and the distance (R,) of its first unknown
-        sample before the first occupied voxel, where it enters the unseen (nan: none)."""
+    def unknown_ends(self, origins: np.ndarray, directions: np.ndarray, t_min: float,
+                     t_max: float) -> tuple[np.ndarray, np.ndarray]:
+        """The unknown space each ray ends in: per ray (origins and unit directions (R, 3)), the length
+        (m) of the unbroken run of unknown samples (every half voxel between t_min and t_max) just
+        before its first occupied voxel, or before t_max when it meets none, and the distance where
+        that run begins (nan when there is none). Unknown space a ray leaves again for known free
+        space (the unseen strip beside a camera) ends nothing. Outside the grid counts as unknown,
+        as in `state`."""
         o = np.asarray(origins, float).reshape(-1, 3)
         d = np.asarray(directions, float).reshape(-1, 3)
         step = 0.5 * self.voxel_size
@@ -205,9 +232,11 @@ class OccupancyMap:
         if len(t) == 0 or len(o) == 0:
             return np.zeros(len(o)), np.full(len(o), np.nan)
         states = self.state(o[:, None, :] + d[:, None, :] * t[None, :, None]).reshape(len(o), len(t))
-        unknown = (states == UNKNOWN) & (np.cumsum(states == OCCUPIED, axis=1) == 0)
-        entry = np.where(unknown.any(axis=1), t[np.argmax(unknown, axis=1)], np.nan)
-        return unknown.sum(axis=1) * step, entry
+        before = np.cumsum(states == OCCUPIED, axis=1) == 0
+        last_known = np.where(before & (states != UNKNOWN), np.arange(len(t)), -1).max(axis=1)
+        run = before.sum(axis=1) - 1 - last_known
+        entry = np.where(run > 0, t[np.minimum(last_known + 1, len(t) - 1)], np.nan)
+        return run * step, entry
 
     def occupied(self) -> np.ndarray:
         return self.surface.copy()
@@ -243,6 +272,17 @@ class OccupancyMap:
         self.observed |= hit
         if passed is not None:
             self.observed |= passed
+
+
+def _checked_frame(depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> np.ndarray:
+    """The depth as float32; a frame of the wrong shape or a non-finite pose is a DataError."""
+    depth = np.asarray(depth, np.float32)
+    if depth.ndim != 2 or np.asarray(K).shape != (3, 3) or np.asarray(T_wc).shape != (4, 4):
+        raise DataError(f"occupancy update needs an HxW depth, a 3x3 K and a 4x4 pose; got shapes "
+                        f"{depth.shape}, {np.asarray(K).shape}, {np.asarray(T_wc).shape}")
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(T_wc))):
+        raise DataError("occupancy update: the camera pose or intrinsics hold NaN or infinity")
+    return depth
 
 
 def footprint_px(voxel: float, focal: float, depth: np.ndarray) -> np.ndarray:
