@@ -104,3 +104,14 @@ def test_splat_items_sum_to_the_papers_mi_and_the_loop_flies(tmp_path):
     metrics = Mission(load_config("demo", LOOKAHEAD), tmp_path / "flight", progress=False).run()
     assert metrics["method"] == "gaussmi2d_lookahead" and metrics["frames"] == 4
     assert math.isfinite(metrics["eval"]["psnr"])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_without_travel_no_sequence_beats_its_best_single_view(seed):
+    # G(S) <= |S| max_n G({n}) for a union of per-item maxima: per view, a sequence never gains more
+    rng = np.random.default_rng(seed)
+    items = rng.exponential(size=(6, 40)) * (rng.random((6, 40)) < 0.4)
+    rates, plans = sequence_rates(items, rng.random(6), rng.random((6, 6)), view_time=1e9, depth=3)
+    best = int(np.argmax(rates))
+    assert best == int(np.argmax(items.sum(axis=1)))
+    assert rates[best] == pytest.approx(items.sum(axis=1).max() / (1e9 + 1.0), rel=1e-8)
