@@ -12,7 +12,7 @@ from flightrecon.geometry import camera_pose
 from flightrecon.mission import Mission
 from flightrecon.planning.timing import Limits
 from flightrecon.scenario import load_config
-from test_explore import TINY, _half_known_room, _wall_observation
+from test_explore import TINY, _half_known_room
 
 LOOKAHEAD = [*TINY, "selector.method=gaussmi2d_lookahead"]
 
@@ -73,37 +73,31 @@ def test_unknown_cells_seen_from_two_near_cameras_count_once():
     assert union < 1.3 * max(items[0].sum(), items[1].sum())  # the second camera sees mostly the same cells
 
 
-def test_splat_items_sum_to_the_papers_mi_and_the_loop_flies(tmp_path):
-    cfg = load_config("demo", LOOKAHEAD)
-    mission = Mission(cfg, tmp_path, progress=False)
-    mission._take_off()
-    obs = _wall_observation(cfg, mission)
-    sel = make_selector(cfg)
-    sel.observe(mission.view, obs)
-    T = obs.T_wc
-    poses = np.stack([T, camera_pose(T[:3, 3], math.pi / 2), camera_pose(T[:3, 3] + [0.3, 0, 0], 0.2)])
-    items = sel.splat_items(mission.view, poses)
-    assert items.shape == (3, len(mission.view)) and bool((items >= 0).all())
-    exact = sel.cfg.with_section("reliability", gain_floor=0.0)  # the oracle: the C++ sided sums, uncut
-    sel.cfg, culled = exact, sel.cfg
-    mi = sel.mutual_information(mission.view, poses).numpy()
-    sel.cfg = culled
-    np.testing.assert_allclose(items.sum(dim=1).numpy(), mi, rtol=2e-4)
-    assert mi[0] > 0
-    # one view: the rate of gaussmi2d_explore's score; the state carries where the drone is
-    one = load_config("demo", [*LOOKAHEAD, "lookahead.depth=1"])
-    greedy = make_selector(one)
-    greedy.observe(mission.view, obs)
-    first = greedy.first_leg_times(poses, None)
-    explore = greedy.mutual_information(mission.view, poses, torch.as_tensor(greedy.frontier_gain(poses)))
-    got = greedy.score(mission.view, poses)
-    assert int(np.argmax(got)) == int(np.argmax(explore.numpy() / (one.lookahead.view_time + first)))
-    restored = make_selector(cfg)
-    restored.set_state(sel.get_state())
-    np.testing.assert_array_equal(restored.here, T)
-    metrics = Mission(load_config("demo", LOOKAHEAD), tmp_path / "flight", progress=False).run()
+def test_the_loop_flies_and_splat_items_sum_to_the_papers_mi(tmp_path):
+    mission = Mission(load_config("demo", LOOKAHEAD), tmp_path, progress=False)
+    metrics = mission.run()
     assert metrics["method"] == "gaussmi2d_lookahead" and metrics["frames"] == 4
     assert math.isfinite(metrics["eval"]["psnr"])
+    sel, view = mission.selector, mission.view
+    assert isinstance(sel, GaussMI2DLookahead)
+    T = sel.here  # the last captured frame's pose
+    poses = np.stack([T, camera_pose(T[:3, 3], math.pi / 2), camera_pose(T[:3, 3] + [0.3, 0, 0], 0.2)])
+    items = sel.splat_items(view, poses)
+    assert items.shape == (3, len(view)) and bool((items >= 0).all())
+    exact = sel.cfg.with_section("reliability", gain_floor=0.0)  # the oracle: the C++ sided sums, uncut
+    sel.cfg, culled = exact, sel.cfg
+    mi = sel.mutual_information(view, poses).numpy()
+    sel.cfg = culled
+    np.testing.assert_allclose(items.sum(dim=1).numpy(), mi, rtol=2e-4)
+    assert mi.max() > 0
+    # one view: the rate of gaussmi2d_explore's score; the state carries where the drone is
+    greedy = GaussMI2DLookahead(sel.cfg.with_section("lookahead", depth=1))
+    greedy.set_state(sel.get_state())
+    np.testing.assert_array_equal(greedy.here, T)
+    first = greedy.first_leg_times(poses, None)
+    explore = greedy.mutual_information(view, poses, torch.as_tensor(greedy.frontier_gain(poses)))
+    got = greedy.score(view, poses)
+    assert int(np.argmax(got)) == int(np.argmax(explore.numpy() / (greedy.cfg.lookahead.view_time + first)))
 
 
 @pytest.mark.parametrize("seed", range(5))
