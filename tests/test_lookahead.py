@@ -66,7 +66,7 @@ def test_unknown_cells_seen_from_two_near_cameras_count_once():
     sel.occupancy = _half_known_room()  # nothing seen beyond x = 2 where y < 0
     poses = np.stack([camera_pose(np.array([1.0, -1.0, 1.05]), 0.0), camera_pose(np.array([1.0, -1.1, 1.05]), 0.0),
                       camera_pose(np.array([1.0, 2.0, 1.05]), 0.0)])
-    items = sel.frontier_items(poses)
+    items = sel.frontier_items(sel.frontier_entries(poses))
     np.testing.assert_allclose(items.sum(axis=1), sel.frontier_gain(poses))  # binning keeps every ray's gain
     assert items[0].sum() > 0 and items[2].sum() == 0  # facing the wall: only the band before it
     union = np.maximum(items[0], items[1]).sum()

@@ -122,11 +122,11 @@ class GaussMI2DExplore(GaussMI2D):
                                 t_min=self.cfg.camera.near, t_max=s.range, min_unknown=UNKNOWN_VOXELS * s.voxel,
                                 stride=s.stride)
 
-    def frontier_gain(self, poses: np.ndarray) -> np.ndarray:
+    def frontier_gain(self, poses: np.ndarray, entries: np.ndarray | None = None) -> np.ndarray:
         """The unseen-surface term [C] of each candidate camera T_wc [C,4,4], in MI units: a ray stands
-        for stride^2 pixels."""
-        counted = np.isfinite(self.frontier_entries(poses)[..., 0]).sum(axis=1)
-        return PRIOR_GAIN * self.cfg.explore.stride ** 2 * counted
+        for stride^2 pixels. `entries`: their `frontier_entries`, when already marched."""
+        entries = self.frontier_entries(poses) if entries is None else entries
+        return PRIOR_GAIN * self.cfg.explore.stride ** 2 * np.isfinite(entries[..., 0]).sum(axis=1)
 
     def score(self, view: MapView, poses: np.ndarray, lengths: np.ndarray | None = None) -> np.ndarray:
         offset = torch.as_tensor(self.frontier_gain(poses), dtype=torch.float64)

@@ -118,15 +118,14 @@ class GaussMI2DLookahead(GaussMI2DExplore):
             (sums,) = torch.autograd.grad(image.sum(), leaf)
         return (gain.double() * sums[..., 0].double()).cpu()
 
-    def frontier_items(self, poses: np.ndarray) -> np.ndarray:
-        """Per camera T_wc [M,4,4]: the frontier gain of its counted rays, binned by the `lookahead.cell`
-        where each ray enters unknown space, float64 [M, cells] (cells any of them reaches)."""
-        entries = self.frontier_entries(poses)
+    def frontier_items(self, entries: np.ndarray) -> np.ndarray:
+        """Per camera of `frontier_entries` [M,R,3]: the frontier gain of its counted rays, binned by the
+        `lookahead.cell` where each ray enters unknown space, float64 [M, cells] (cells any of them reaches)."""
         counted = np.isfinite(entries[..., 0])
         cam = np.nonzero(counted)[0]
         cells = np.floor(entries[counted] / self.cfg.lookahead.cell).astype(np.int64)
         _, cell = np.unique(cells, axis=0, return_inverse=True)
-        out = np.zeros((len(poses), int(cell.max()) + 1 if len(cell) else 0))
+        out = np.zeros((len(entries), int(cell.max()) + 1 if len(cell) else 0))
         np.add.at(out, (cam, cell.reshape(-1)), PRIOR_GAIN * self.cfg.explore.stride ** 2)
         return out
 
@@ -150,12 +149,15 @@ class GaussMI2DLookahead(GaussMI2DExplore):
         poses = np.asarray(poses, float)
         la = self.cfg.lookahead
         first = self.first_leg_times(poses, lengths)
-        one_view = super().score(view, poses, lengths) / (la.view_time + first)  # lower bounds where the cut left one
+        entries = self.frontier_entries(poses)  # marched once: the one-view scores and the beam's items
+        offset = torch.as_tensor(self.frontier_gain(poses, entries), dtype=torch.float64)
+        # per second; lower bounds where the MI's cut left one
+        one_view = self.mutual_information(view, poses, offset).numpy() / (la.view_time + first)
         if la.depth == 1 or len(poses) < 2:
             return one_view
         top = np.argsort(-one_view, kind="stable")[:la.beam]
         items = np.concatenate([self.splat_items(view, poses[top]).numpy() if len(view) else np.zeros((len(top), 0)),
-                                self.frontier_items(poses[top])], axis=1)
+                                self.frontier_items(entries[top])], axis=1)
         scores = one_view.copy()
         scores[top], _ = sequence_rates(items, first[top], self.between_times(poses[top]), la.view_time, la.depth)
         return scores

@@ -137,8 +137,9 @@ class OccupancyMap:
         rays = pixel_rays(depth.shape[1], depth.shape[0], np.asarray(K, float))[k // 2::k, k // 2::k].reshape(-1, 3)
         reach = evidence[k // 2::k, k // 2::k].reshape(-1).astype(float)
         keep = reach > 0
-        reach = np.minimum(reach[keep], self.free_range) * np.linalg.norm(rays[keep], axis=1) - self.voxel_size
-        dirs = rays[keep] / np.linalg.norm(rays[keep], axis=1, keepdims=True) @ np.asarray(T_wc, float)[:3, :3].T
+        norms = np.linalg.norm(rays[keep], axis=1)
+        reach = np.minimum(reach[keep], self.free_range) * norms - self.voxel_size
+        dirs = rays[keep] / norms[:, None] @ np.asarray(T_wc, float)[:3, :3].T
         step = 0.5 * self.voxel_size
         free = np.zeros(self.shape, bool)
         for s in range(0, len(dirs), RAYS_PER_BLOCK):
