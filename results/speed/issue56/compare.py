@@ -1,15 +1,17 @@
-"""The CPU-default quality check (plan.md): after minus before per scene, with the scene as the unit.
+"""The quality checks (plan.md, plan_paper.md): after minus before per scene, with the scene as the unit.
 
-Reads each arm's runs under runs/<arm>/default/<scene>/gaussmi2d/seed0 (eval.json, metrics.json,
-frames.csv) and prints, per scene and as mean and 95% t-interval over the scenes both arms have
+Reads each arm's runs under <root>/<arm>/<scenario>/<scene>/gaussmi2d/seed0 (eval.json, metrics.json,
+frames.csv; by default the CPU-default check's runs/<arm>/default, with --paper the paper-setting
+check's runs_paper/<arm>/office0) and prints, per scene and as mean and 95% t-interval over the scenes both arms have
 finished: PSNR, depth L1, splats, map size and the flight's median mapping seconds per frame (the
 last only as flown: the arms shared the cores, so it is no speed measurement).
 
-    python results/speed/issue56/compare.py
+    python results/speed/issue56/compare.py [--paper]
 """
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import statistics
@@ -34,7 +36,11 @@ def run_figures(run: Path) -> dict[str, float]:
 
 
 def main() -> None:
-    runs = {arm: {p.parents[2].name: p.parents[0] for p in (HERE / "runs" / arm).glob("default/*/gaussmi2d/seed0/eval.json")}
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--paper", action="store_true", help="the paper-setting check (plan_paper.md)")
+    args = parser.parse_args()
+    root, scenario = ("runs_paper", "office0") if args.paper else ("runs", "default")
+    runs = {arm: {p.parents[2].name: p.parents[0] for p in (HERE / root / arm).glob(f"{scenario}/*/gaussmi2d/seed0/eval.json")}
             for arm in ARMS}
     scenes = sorted(set(runs["before"]) & set(runs["after"]))
     figures = {arm: {s: run_figures(runs[arm][s]) for s in scenes} for arm in ARMS}
