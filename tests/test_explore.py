@@ -1,5 +1,6 @@
 """gaussmi2d_explore: the frontier ray query, the unseen-surface term, and its place in the loop."""
 
+import csv
 import math
 
 import numpy as np
@@ -155,10 +156,20 @@ def test_explore_score_is_the_papers_mi_plus_the_frontier_gain(tmp_path):
     assert np.all(got <= mi + frontier + 1e-9 * np.abs(mi + frontier))  # others: a lower bound of the total
 
 
-def test_explore_flies_a_closed_loop(tmp_path):
-    cfg = load_config("demo", TINY)
+def test_explore_flies_a_closed_loop_and_its_diagnosis_splits_each_chosen_score(tmp_path):
+    # every score exact (no floor), so the chosen one is its MI plus its frontier term
+    cfg = load_config("demo", TINY + ["output.diagnose=true", "reliability.gain_floor=0"])
     metrics = Mission(cfg, tmp_path, progress=False).run()
     assert metrics["method"] == "gaussmi2d_explore" and metrics["frames"] == 4
-    rows = (tmp_path / "frames.csv").read_text().splitlines()
-    assert len(rows) == 5
+    with open(tmp_path / "frames.csv", newline="") as fh:
+        frames = list(csv.DictReader(fh))
+    assert len(frames) == 4
     assert torch.isfinite(torch.tensor(metrics["eval"]["psnr"]))
+    with open(tmp_path / "diagnosis.csv", newline="") as fh:
+        chosen = [r for r in csv.DictReader(fh) if r["frontier"]]
+    assert chosen
+    for row in chosen:  # the split renders the MI itself (active/diagnosis.py), apart from the scoring kernel
+        score = next(float(f["chosen_score"]) for f in frames if f["frame"] == row["frame"])
+        assert float(row["mi"]) + float(row["frontier"]) == pytest.approx(score, rel=1e-4, abs=1e-6)
+        units = float(row["frontier"]) / (PRIOR_GAIN * cfg.explore.stride ** 2)
+        assert units == pytest.approx(round(units), rel=1e-5)  # whole rays into unseen space (csv rounding)

@@ -132,6 +132,11 @@ class GaussMI2DExplore(GaussMI2D):
         offset = torch.as_tensor(self.frontier_gain(poses), dtype=torch.float64)
         return self.mutual_information(view, poses, offset).numpy()
 
+    def diagnose(self, view: MapView, T_wc: np.ndarray) -> dict:
+        """The paper's MI split (GaussMI2D.diagnose) and the chosen view's frontier term (`frontier`):
+        the two parts of its score, so a choice drawn back to seen surface shows which part drew it."""
+        return {**super().diagnose(view, T_wc), "frontier": float(self.frontier_gain(np.asarray(T_wc)[None])[0])}
+
     def get_state(self) -> dict:
         if self.occupancy is None:
             return {}
