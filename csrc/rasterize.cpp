@@ -29,6 +29,16 @@ Camera camera_of(const torch::Tensor& viewmats, const torch::Tensor& Ks, int64_t
   return cam;
 }
 
+const uint8_t* tile_flags(const torch::Tensor& keep_tiles, int64_t C, int64_t W, int64_t H) {
+  if (keep_tiles.numel() == 0) return nullptr;
+  const int64_t tiles = ((W + TS - 1) / TS) * ((H + TS - 1) / TS);
+  TORCH_CHECK(keep_tiles.scalar_type() == torch::kUInt8 && keep_tiles.is_contiguous() && keep_tiles.dim() == 2 &&
+                  keep_tiles.size(0) == C && keep_tiles.size(1) == tiles,
+              "rasterizer: keep_tiles must be a contiguous uint8 tensor [cameras, tiles] = [", C, ", ", tiles,
+              "] (the 16x16 tiles row by row), or empty for every tile");
+  return keep_tiles.data_ptr<uint8_t>();
+}
+
 namespace {
 
 // Increasing indices of the splats that pass project_splat's first test for one camera (with a

@@ -234,10 +234,11 @@ std::vector<uint8_t> candidate_mask(const S* means, const S* U, const S* V, int6
 template <typename S>
 std::vector<int32_t> morton_order(const S* means, int64_t N);
 // The records of one camera's binned splats (features feat [N, D] by splat id), sorted by depth
-// and listed per tile.
+// and listed per tile. With `keep_tile` ([tiles], row-major), a tile whose flag is 0 lists no
+// splat: the blend leaves its pixels empty and the backward has nothing to do there.
 template <typename S>
 Bins<S> bin_and_sort(const Projected<S>& P, const SplatGroups<S>& G, const Visible& vis, const S* feat, int D,
-                     const Settings& st, Stats& stats);
+                     const Settings& st, Stats& stats, const uint8_t* keep_tile = nullptr);
 
 // rasterize_forward.cpp
 // Blends tile `tile` front to back into `out`; TRACK: also the median depth and last/median splats.

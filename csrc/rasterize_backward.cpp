@@ -499,7 +499,7 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
                                          torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
                                          double near, double far, const Flags& fl,
                                          std::vector<torch::Tensor> fwd, std::vector<torch::Tensor> grads,
-                                         bool fisher, RenderCache* cache) {
+                                         bool fisher, const uint8_t* keep_tiles, RenderCache* cache) {
   const int64_t N = means.size(0), C = viewmats.size(0), D = feats.size(2);
   const bool shared = feats.size(0) == 1 && C > 1;
   auto opt = means.options();
@@ -540,7 +540,7 @@ std::vector<torch::Tensor> backward_impl(torch::Tensor means, torch::Tensor U, t
       project_camera<S>(groups, cam, st, own, vis);
       g_stats.project += omp_get_wtime() - t0;
       const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
-      fresh = bin_and_sort(own, groups, vis, f, int(D), st, g_stats);
+      fresh = bin_and_sort(own, groups, vis, f, int(D), st, g_stats, keep_tiles ? keep_tiles + c * tiles : nullptr);
     }
     const Bins<S>& B = kept ? kept->B : fresh;
     if (kept) g_stats.isects += int64_t(B.ids.size());
@@ -587,13 +587,14 @@ std::vector<torch::Tensor> backward(torch::Tensor means, torch::Tensor U, torch:
                                     torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
                                     bool normal, bool depth, bool dist,
                                     std::vector<torch::Tensor> fwd, std::vector<torch::Tensor> grads,
-                                    bool fisher, RenderCache* cache) {
+                                    bool fisher, torch::Tensor keep_tiles, RenderCache* cache) {
   const Flags fl{normal, depth, dist, true};
+  const uint8_t* keep = tile_flags(keep_tiles, viewmats.size(0), W, H);
   if (means.scalar_type() == torch::kFloat64)
     return backward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher,
-                                 cache);
+                                 keep, cache);
   return backward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, fwd, grads, fisher,
-                              cache);
+                              keep, cache);
 }
 
 }  // namespace raster

@@ -89,7 +89,7 @@ std::vector<int32_t> morton_order(const S* means, int64_t N) {
 
 template <typename S>
 Bins<S> bin_and_sort(const Projected<S>& P, const SplatGroups<S>& G, const Visible& vis, const S* feat, int D,
-                     const Settings& st, Stats& stats) {
+                     const Settings& st, Stats& stats, const uint8_t* keep_tile) {
   const int tiles = st.tiles_x * st.tiles_y;
   const double t0 = omp_get_wtime();
   Bins<S> b;
@@ -133,10 +133,12 @@ Bins<S> bin_and_sort(const Projected<S>& P, const SplatGroups<S>& G, const Visib
   const double t2 = omp_get_wtime();
   // Tiles list their records in depth order.
   b.offsets.assign(tiles + 1, 0);
+  auto kept = [keep_tile](int t) { return keep_tile == nullptr || keep_tile[t] != 0; };
   for (int64_t k = 0; k < V; ++k) {
     const int* r = &b.rect[4 * k];
     for (int ty = r[1] / TS; ty <= r[3] / TS; ++ty)
-      for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx) ++b.offsets[ty * st.tiles_x + tx + 1];
+      for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx)
+        if (kept(ty * st.tiles_x + tx)) ++b.offsets[ty * st.tiles_x + tx + 1];
   }
   for (int t = 0; t < tiles; ++t) b.offsets[t + 1] += b.offsets[t];
   b.ids.resize(b.offsets[tiles]);
@@ -144,7 +146,8 @@ Bins<S> bin_and_sort(const Projected<S>& P, const SplatGroups<S>& G, const Visib
   for (int64_t k : order) {
     const int* r = &b.rect[4 * k];
     for (int ty = r[1] / TS; ty <= r[3] / TS; ++ty)
-      for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx) b.ids[fill[ty * st.tiles_x + tx]++] = int32_t(k);
+      for (int tx = r[0] / TS; tx <= r[2] / TS; ++tx)
+        if (kept(ty * st.tiles_x + tx)) b.ids[fill[ty * st.tiles_x + tx]++] = int32_t(k);
   }
   stats.bin += (t1 - t0) + (omp_get_wtime() - t2);
   stats.sort += t2 - t1;
@@ -155,8 +158,8 @@ Bins<S> bin_and_sort(const Projected<S>& P, const SplatGroups<S>& G, const Visib
 template std::vector<int32_t> morton_order(const float*, int64_t);
 template std::vector<int32_t> morton_order(const double*, int64_t);
 template Bins<float> bin_and_sort(const Projected<float>&, const SplatGroups<float>&, const Visible&, const float*,
-                                  int, const Settings&, Stats&);
+                                  int, const Settings&, Stats&, const uint8_t*);
 template Bins<double> bin_and_sort(const Projected<double>&, const SplatGroups<double>&, const Visible&,
-                                   const double*, int, const Settings&, Stats&);
+                                   const double*, int, const Settings&, Stats&, const uint8_t*);
 
 }  // namespace raster

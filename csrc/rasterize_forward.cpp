@@ -356,7 +356,8 @@ template <typename S>
 std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, torch::Tensor V,
                                         torch::Tensor n, torch::Tensor opac, torch::Tensor feats,
                                         torch::Tensor viewmats, torch::Tensor Ks, int64_t W, int64_t H,
-                                        double near, double far, const Flags& fl, RenderCache* cache) {
+                                        double near, double far, const Flags& fl, const uint8_t* keep_tiles,
+                                        RenderCache* cache) {
   const int64_t N = means.size(0), C = viewmats.size(0), D = feats.size(2);
   const bool shared = feats.size(0) == 1;
   const bool keep = cache != nullptr && C == 1;
@@ -396,7 +397,7 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
     write_radii(groups, vis, P, radii.data_ptr<int32_t>() + c * N);
     sc.project += omp_get_wtime() - t0;
     const S* f = feats.data_ptr<S>() + (shared ? 0 : c * N * D);
-    Bins<S> B = bin_and_sort(P, groups, vis, f, int(D), st, sc);
+    Bins<S> B = bin_and_sort(P, groups, vis, f, int(D), st, sc, keep_tiles ? keep_tiles + c * tiles : nullptr);
     if (kept_bins && FR_AVX2 && std::is_same<S, float>::value) B.blended.assign(B.ids.size(), 0u);
     const int64_t HW = H * W;
     FwdOut<S> out{feat_img.data_ptr<S>() + c * HW * D, alpha.data_ptr<S>() + c * HW,
@@ -451,11 +452,13 @@ std::vector<torch::Tensor> forward_impl(torch::Tensor means, torch::Tensor U, to
 std::vector<torch::Tensor> forward(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,
                                    torch::Tensor opac, torch::Tensor feats, torch::Tensor viewmats,
                                    torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
-                                   bool normal, bool depth, bool dist, bool track, RenderCache* cache) {
+                                   bool normal, bool depth, bool dist, bool track, torch::Tensor keep_tiles,
+                                   RenderCache* cache) {
   const Flags fl{normal, depth, dist, track || normal || depth || dist};
+  const uint8_t* keep = tile_flags(keep_tiles, viewmats.size(0), W, H);
   if (means.scalar_type() == torch::kFloat64)
-    return forward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, cache);
-  return forward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, cache);
+    return forward_impl<double>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, keep, cache);
+  return forward_impl<float>(means, U, V, n, opac, feats, viewmats, Ks, W, H, near, far, fl, keep, cache);
 }
 
 }  // namespace raster

@@ -13,12 +13,16 @@ namespace raster {
 
 // rasterize.cpp: camera c of viewmats [C, 4, 4] (world to camera) and Ks [C, 3, 3], in double.
 Camera camera_of(const torch::Tensor& viewmats, const torch::Tensor& Ks, int64_t c);
+// rasterize.cpp: the per-camera tile flags of keep_tiles (uint8 [C, tiles], checked), or null when
+// it is empty (every tile).
+const uint8_t* tile_flags(const torch::Tensor& keep_tiles, int64_t C, int64_t W, int64_t H);
 
 // rasterize_forward.cpp
 std::vector<torch::Tensor> forward(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,
                                    torch::Tensor opac, torch::Tensor feats, torch::Tensor viewmats,
                                    torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
-                                   bool normal, bool depth, bool dist, bool track, RenderCache* cache);
+                                   bool normal, bool depth, bool dist, bool track, torch::Tensor keep_tiles,
+                                   RenderCache* cache);
 
 // rasterize_backward.cpp
 std::vector<torch::Tensor> backward(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,
@@ -26,7 +30,7 @@ std::vector<torch::Tensor> backward(torch::Tensor means, torch::Tensor U, torch:
                                     torch::Tensor Ks, int64_t W, int64_t H, double near, double far,
                                     bool normal, bool depth, bool dist,
                                     std::vector<torch::Tensor> fwd, std::vector<torch::Tensor> grads,
-                                    bool fisher, RenderCache* cache);
+                                    bool fisher, torch::Tensor keep_tiles, RenderCache* cache);
 
 // rasterize_feature_sums.cpp
 std::vector<torch::Tensor> feature_sums(torch::Tensor means, torch::Tensor U, torch::Tensor V, torch::Tensor n,

@@ -188,6 +188,13 @@ class MapperConfig:
     replay_downsample: int = option(1, 1, 8, doc="each replay iteration trains on the replayed frame at 1/n of its "
                                     "width and height (n x n pixel blocks averaged; depth only where the block "
                                     "agrees); 1: full resolution (the paper)")
+    skip_tiles: float = option(0.0, 0.0, 0.95, doc="each iteration on a frame, but every skip_full_every-th, leaves "
+                               "out this share of its 16x16 tiles, those whose color error was lowest when last "
+                               "rendered: the rasterizer skips them and the loss is averaged over the rest "
+                               "(mapping/tile_skip.py); iterations on a replay window or at a reduced size keep "
+                               "every tile; 0: every tile (the paper)")
+    skip_full_every: int = option(4, 1, 1000, doc="with skip_tiles: every n-th iteration on a frame renders every "
+                                  "tile, which refreshes the errors of those left out")
     lambda_depth: float = option(5.0, 0.0, 1e3)
     lambda_distortion: float = option(1.0, 0.0, 1e3)
     lambda_normal: float = option(0.05, 0.0, 1e3)

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from flightrecon.errors import DataError, FlightReconError
-from flightrecon.render import FisherDiag, render, render_fisher_diag
+from flightrecon.render import FisherDiag, render, render_fisher_diag, tile_grid
 from flightrecon.render.backend_cpu import candidate_rows, splat_axes_cpu
 from flightrecon.render.fisher import screen_jacobian
 from flightrecon.render.projection import CUTOFF, project, splat_axes
@@ -485,3 +485,57 @@ def test_a_view_of_more_splats_than_torchs_parallel_grain_renders_and_trains_ali
         torch.set_num_threads(before)
     for a, b in zip(one, two):
         assert torch.equal(a, b)
+
+
+def _keep_every_other_tile(c, w, h):
+    rows, cols = tile_grid(w, h)
+    keep = (torch.arange(rows)[:, None] + torch.arange(cols)[None]) % 2 == 0
+    keep = keep[None].repeat(c, 1, 1)
+    keep[-1, 0, 0] = False  # the cameras differ
+    return keep
+
+
+def test_dropped_tiles_render_nothing_and_kept_tiles_exactly_the_full_image():
+    scene = make_scene(300, seed=4)
+    vm, K = cameras(2, 50, 37)  # the last tile row and column are partial
+    keep = _keep_every_other_tile(2, 50, 37)
+    full = render(*scene, vm, K, 50, 37, outputs=ALL, backend="cpu")
+    part = render(*scene, vm, K, 50, 37, outputs=ALL, backend="cpu", keep_tiles=keep)
+    pixels = keep.repeat_interleave(16, 1).repeat_interleave(16, 2)[:, :37, :50]
+    assert full.alpha[pixels].max() > 0.9 and full.alpha[~pixels].max() > 0.9  # both sets hold surface
+    for k in ALL:
+        x, y = getattr(full, k), getattr(part, k)
+        assert torch.equal(y[pixels], x[pixels]), k  # the same splats in the same order: bit for bit
+        assert (y[~pixels] == 0).all(), k
+    assert torch.equal(part.radii, full.radii)
+    ref = render(*scene, vm, K, 50, 37, outputs=ALL, backend="reference", keep_tiles=keep)
+    assert_agree(ref, part)
+
+
+def test_dropped_tiles_pass_no_gradient_and_kept_ones_the_references():
+    means, quats, ls, op, feats = make_scene(60, seed=5, dtype=torch.float64)
+    vm, K = cameras(2, 40, 20, torch.float64)
+    keep = _keep_every_other_tile(2, 40, 20)
+    grads = {}
+    pixels = keep.repeat_interleave(16, 1).repeat_interleave(16, 2)[:, :20, :40, None]
+    # oracle: a full render whose loss leaves the dropped pixels out; the cpu loss keeps them in
+    for be, kt, weight in (("reference", None, pixels), ("cpu", keep, torch.ones_like(pixels))):
+        ps = [t.clone().requires_grad_(True) for t in (means, quats, ls, op, feats)]
+        out = render(*ps, vm, K, 40, 20, outputs=ALL, backend=be, keep_tiles=kt)
+        g = torch.Generator().manual_seed(8)
+        loss = sum((torch.where(weight, getattr(out, k), 0.0)
+                    * torch.randn(getattr(out, k).shape, generator=g, dtype=torch.float64)).sum() for k in ALL)
+        loss.backward()
+        grads[be] = [p.grad for p in ps]
+    for name, x, y in zip(("means", "quats", "log_scales", "opacity", "features"), *grads.values()):
+        assert x.abs().max() > 0, name
+        torch.testing.assert_close(y, x, rtol=1e-6, atol=1e-7 * x.abs().max().item(), msg=name)
+
+
+def test_keep_tiles_of_the_wrong_shape_or_type_is_refused_with_the_grid_it_needs():
+    scene = make_scene(10)
+    vm, K = cameras(1, 40, 20)
+    with pytest.raises(FlightReconError, match=r"keep_tiles must be a bool tensor of shape \(1, 2, 3\)"):
+        render(*scene, vm, K, 40, 20, keep_tiles=torch.ones(1, 3, 3, dtype=torch.bool))
+    with pytest.raises(FlightReconError, match="keep_tiles"):
+        render(*scene, vm, K, 40, 20, keep_tiles=torch.ones(1, 2, 3))

@@ -7,6 +7,11 @@ L = (1 - w) L1(C) + w (1 - SSIM(C))                       over all pixels
 with M = pixels whose observed depth is valid and whose rendered alpha exceeds 0.95, D the expected
 depth, N the rendered (camera-facing) normal and N_D the normal of the rendered depth surface.
 The distortion image is the rasterizer's (normalized-depth squared form, see render/).
+
+An iteration that renders only some tiles (`keep`, mapper.skip_tiles) trains on their pixels as a
+window trains on its own: each term is averaged over the kept pixels. The dropped pixels take the
+target's color (no error, no gradient; SSIM windows that reach into them see the target there) and
+are out of M and of the distortion's mean.
 """
 
 from __future__ import annotations
@@ -80,13 +85,20 @@ def frame_target(rgb: torch.Tensor, depth: torch.Tensor, rays: torch.Tensor, wit
 
 
 def training_loss(out, target: FrameTarget, *, ssim_weight: float, lambda_depth: float, lambda_normal: float,
-                  lambda_distortion: float) -> torch.Tensor:
-    """Scalar loss of one rendered view `out` (RenderOutput, one camera) against `target`."""
+                  lambda_distortion: float, keep: torch.Tensor | None = None) -> torch.Tensor:
+    """Scalar loss of one rendered view `out` (RenderOutput, one camera) against `target`; with
+    `keep` [H,W,1] (the pixels of the tiles rendered), over those pixels (module docstring)."""
     color = out.features[0]
-    loss = (1.0 - ssim_weight) * (color - target.rgb).abs().mean()
+    share = 1.0
+    if keep is not None:
+        color = torch.where(keep, color, target.rgb)
+        share = max(float(keep.float().mean()), 1e-12)  # the full-image means below, over the kept pixels
+    loss = (1.0 - ssim_weight) * (color - target.rgb).abs().mean() / share
     if ssim_weight > 0:
-        loss = loss + ssim_weight * (1.0 - target.ssim(color))
+        loss = loss + ssim_weight * (1.0 - target.ssim(color)) / share
     opaque = out.alpha[0].detach() > ALPHA_MASK
+    if keep is not None:
+        opaque = opaque & keep
     rendered_depth = out.depth[0]
     if lambda_depth > 0:
         mask = target.valid & opaque
@@ -97,5 +109,6 @@ def training_loss(out, target: FrameTarget, *, ssim_weight: float, lambda_depth:
         cos = (out.normal[0] * normals_from_depth(rendered_depth, target.rays)).sum(-1, keepdim=True)
         loss = loss + lambda_normal * torch.where(mask, 1.0 - cos, 0.0).sum() / mask.sum().clamp_min(1)
     if lambda_distortion > 0:
-        loss = loss + lambda_distortion * out.distortion[0].mean()
+        distortion = out.distortion[0] if keep is None else torch.where(keep, out.distortion[0], 0.0)
+        loss = loss + lambda_distortion * distortion.mean() / share
     return loss

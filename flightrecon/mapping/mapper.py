@@ -9,7 +9,8 @@ map already explains needs few. With `replay_window` < 1 (not the paper's settin
 iteration trains on a window of the replayed frame, drawn at random: the frame keeps its full
 resolution while an iteration pays for a share of its pixels. With `replay_downsample` n > 1 (not
 the paper's setting) each replay iteration trains on the whole frame at 1/n of its width and height
-(frames.downsample), a window of it if both are set.
+(frames.downsample), a window of it if both are set. With `skip_tiles` > 0 (not the paper's setting) an
+iteration leaves out the frame's tiles that already match it (mapping/tile_skip.py).
 
 Pruning (`prune_opacity` > 0) drops the splats whose opacity fell below it after the update,
 every column with them (GaussianMap.keep: optimizer moments, reliability, the selectors'
@@ -37,8 +38,10 @@ from flightrecon.mapping.frames import (StoredFrame, Window, compact_frame, down
 from flightrecon.mapping.losses import ALPHA_MASK, FrameTarget, frame_target, training_loss
 from flightrecon.mapping.optimizer import SparseAdam
 from flightrecon.mapping.store import PARAM_SHAPES, GaussianMap
+from flightrecon.mapping.tile_skip import tile_errors, tiles_to_keep
 from flightrecon.mapping.voxel_hash import reject_near, voxel_keys
 from flightrecon.render import RenderedView, candidate_rows, render, render_view_with_sums
+from flightrecon.render.api import tile_pixels
 
 log = logging.getLogger(__name__)
 
@@ -95,6 +98,8 @@ class OnlineMapper:
         self._rays: dict[tuple, torch.Tensor] = {}
         self.tombstones = np.zeros(0, np.int64)  # sorted gamma-voxel keys of pruned splats
         self.pruned = 0
+        self.tile_error: list[np.ndarray | None] = []  # per stored frame: its tiles' errors when last rendered
+        self.frame_iterations: list[int] = []  # per stored frame: the iterations trained on it
 
     # -- one timestep ---------------------------------------------------------------------------
     def add_frame(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, T_wc: np.ndarray) -> FrameStats:
@@ -111,9 +116,11 @@ class OnlineMapper:
             return FrameStats(index, 0, len(self.map))
         frame = compact_frame(rgb, depth, K, T_wc, valid)
         self.frames.append(frame)
+        self.tile_error.append(None)
+        self.frame_iterations.append(0)
         with profiling.stage("densify"):
             added = self._insert(rgb, depth, K, T_wc, index)
-        self._optimize(frame, self.cfg.k_new, count_observed=True, stop_share=self.cfg.k_new_stop,
+        self._optimize(index, self.cfg.k_new, count_observed=True, stop_share=self.cfg.k_new_stop,
                        min_iters=self.cfg.k_new_min)
         self._clock += 1
         self.last_trained.append(self._clock)
@@ -138,7 +145,7 @@ class OnlineMapper:
             pick = self._replay_pick(index)
             self._clock += 1
             self.last_trained[pick] = self._clock
-            self._optimize(self.frames[pick], 1, window=self._replay_window(self.frames[pick]),
+            self._optimize(pick, 1, window=self._replay_window(self.frames[pick]),
                            factor=self.cfg.replay_downsample)
 
     def _prune(self) -> None:
@@ -210,11 +217,11 @@ class OnlineMapper:
                          & (color_error <= self.cfg.seed_color_tol))
         return ~explained
 
-    def _optimize(self, frame: StoredFrame, iters: int, count_observed: bool = False, stop_share: float = 0.0,
+    def _optimize(self, index: int, iters: int, count_observed: bool = False, stop_share: float = 0.0,
                   min_iters: int = 0, window: Window | None = None, factor: int = 1) -> None:
-        """`iters` Adam iterations on one frame (at 1/`factor` of its size, or on a `window` of that),
-        on the splats that may reach that image; with `stop_share` > 0, fewer once (after `min_iters`)
-        the loss is at most that share of the first.
+        """`iters` Adam iterations on stored frame `index` (at 1/`factor` of its size, or on a `window`
+        of that), on the splats that may reach that image; with `stop_share` > 0, fewer once (after
+        `min_iters`) the loss of an iteration that renders every tile is at most that share of the first.
 
         Only splats the camera can see get gradient and updates, and the rest stay fixed during the
         call, so one conservative culling test at the start (_view_rows) picks every splat that could
@@ -227,6 +234,8 @@ class OnlineMapper:
         its position."""
         if iters <= 0 or len(self.map) == 0:
             return
+        frame = self.frames[index]
+        whole = window is None and factor == 1  # tiles are left out of whole-frame iterations only
         with profiling.stage("view setup"):
             target = self._target(frame, window, factor)
             H, W = target.depth.shape[:2]
@@ -239,10 +248,15 @@ class OnlineMapper:
             leaves = self.adam.gather(rows)
         first_loss = None
         for it in range(iters):
+            keep = self._tiles_to_render(index) if whole else None
             with profiling.stage("render"):
-                out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS)
+                out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS,
+                                   None if keep is None else torch.from_numpy(keep)[None].to(self.device))
             with profiling.stage("loss"):
-                loss = self._loss(out, target)
+                pixels = None if keep is None else tile_pixels(torch.from_numpy(keep)[None], W, H)[0].to(self.device)
+                loss = self._loss(out, target, pixels)
+                if whole and self.cfg.skip_tiles > 0:
+                    self._note_tile_errors(index, out.features[0], target.rgb, keep)
             with profiling.stage("backward"):
                 loss.backward()
             with profiling.stage("optimizer step"):
@@ -250,13 +264,32 @@ class OnlineMapper:
                 if count_observed and it == 0:
                     self.map["n_observed"][rows[visible]] += 1
                 self.adam.step(leaves, visible, rows)
-            if stop_share > 0:  # the loss before this step, against the first one's
+            if stop_share > 0 and keep is None:  # the loss before this step, against the first one's
                 value = float(loss.detach())
                 first_loss = value if first_loss is None else first_loss
                 if it + 1 >= min_iters and value <= stop_share * first_loss:
                     break
         with profiling.stage("view setup"):
             self.adam.scatter(rows, leaves)
+
+    def _tiles_to_render(self, index: int) -> np.ndarray | None:
+        """The tiles the next iteration on stored frame `index` renders (bool [rows, cols]), or None for
+        all of them: always without skip_tiles, before the frame was ever rendered, and on every
+        skip_full_every-th iteration on it. Counts the iteration."""
+        n = self.frame_iterations[index]
+        self.frame_iterations[index] = n + 1
+        errors = self.tile_error[index]
+        if self.cfg.skip_tiles <= 0 or errors is None or n % self.cfg.skip_full_every == 0:
+            return None
+        return tiles_to_keep(errors, self.cfg.skip_tiles)
+
+    def _note_tile_errors(self, index: int, color: torch.Tensor, target: torch.Tensor, keep: np.ndarray | None) -> None:
+        """Store the rendered tiles' errors of stored frame `index`; a tile left out keeps its old one."""
+        errors = tile_errors(color, target)
+        if keep is None:
+            self.tile_error[index] = errors
+        else:
+            self.tile_error[index][keep] = errors[keep]
 
     def _view_rows(self, viewmat: torch.Tensor, K: torch.Tensor, W: int, H: int) -> torch.Tensor:
         """Increasing indices of the splats one camera may draw: the C++ kernel's own culling test on
@@ -274,7 +307,9 @@ class OnlineMapper:
         return {"map": self.map.get_state(),
                 "frames": [{f.name: getattr(frame, f.name) for f in fields(StoredFrame)} for frame in self.frames],
                 "last_trained": list(self.last_trained), "clock": self._clock,
-                "rng": self.rng.bit_generator.state, "tombstones": self.tombstones.copy(), "pruned": self.pruned}
+                "rng": self.rng.bit_generator.state, "tombstones": self.tombstones.copy(), "pruned": self.pruned,
+                "frame_iterations": list(self.frame_iterations),
+                "tile_error": [np.zeros((0, 0)) if e is None else e.copy() for e in self.tile_error]}
 
     def set_state(self, state: dict) -> None:
         """Continue from a `get_state()` snapshot (of a mapper built with the same config)."""
@@ -285,13 +320,17 @@ class OnlineMapper:
         self.rng.bit_generator.state = state["rng"]
         self.tombstones = np.asarray(state["tombstones"], np.int64)
         self.pruned = int(state["pruned"])
+        # checkpoints from before skip_tiles carry neither: no frame has tile errors yet
+        self.frame_iterations = [int(n) for n in state.get("frame_iterations", [0] * len(self.frames))]
+        self.tile_error = [None if np.size(e) == 0 else np.array(e, np.float64)
+                           for e in state.get("tile_error", [np.zeros((0, 0))] * len(self.frames))]
 
     # -- queries --------------------------------------------------------------------------------
     def _render(self, p: dict[str, torch.Tensor], viewmats: torch.Tensor, Ks: torch.Tensor, W: int, H: int,
-                outputs: tuple[str, ...]):
+                outputs: tuple[str, ...], keep_tiles: torch.Tensor | None = None):
         return render(p["means"], p["quats"], p["log_scales"], p["opacity_logits"],
                       p["colors"], viewmats, Ks, W, H, near=self.near, far=self.far, outputs=outputs,
-                      backend=self.cfg.backend)
+                      backend=self.cfg.backend, keep_tiles=keep_tiles)
 
     def splats(self) -> dict[str, torch.Tensor]:
         """The current splat parameters with unit quaternions, as renders of the whole map take them."""
@@ -329,10 +368,10 @@ class OnlineMapper:
         out = self._render(p, f.viewmat.to(self.device)[None], f.K.to(self.device)[None], W, H, TRAIN_OUTPUTS)
         return float(self._loss(out, target))
 
-    def _loss(self, out, target: FrameTarget) -> torch.Tensor:
+    def _loss(self, out, target: FrameTarget, keep: torch.Tensor | None = None) -> torch.Tensor:
         c = self.cfg
         return training_loss(out, target, ssim_weight=c.ssim_weight, lambda_depth=c.lambda_depth,
-                             lambda_normal=c.lambda_normal, lambda_distortion=c.lambda_distortion)
+                             lambda_normal=c.lambda_normal, lambda_distortion=c.lambda_distortion, keep=keep)
 
     def _target(self, frame: StoredFrame, window: Window | None = None, factor: int = 1) -> FrameTarget:
         rgb, depth = downsample(*expand_frame(frame, self.device), factor)

@@ -12,6 +12,18 @@ from flightrecon.errors import DataError, FlightReconError
 
 OUTPUTS = ("features", "alpha", "depth", "median_depth", "normal", "normal_world", "distortion")
 BACKENDS = ("auto", "cpu", "cuda", "reference")
+TILE = 16  # the cpu rasterizer's tile side (csrc/rasterize.h, TS): the unit of `keep_tiles`
+
+
+def tile_grid(width: int, height: int) -> tuple[int, int]:
+    """(rows, columns) of TILE x TILE tiles that cover a width x height image."""
+    return -(-height // TILE), -(-width // TILE)
+
+
+def tile_pixels(keep_tiles: Tensor, width: int, height: int) -> Tensor:
+    """A [C,rows,cols] tile mask as a [C,height,width,1] pixel mask."""
+    pixels = keep_tiles.repeat_interleave(TILE, 1).repeat_interleave(TILE, 2)
+    return pixels[:, :height, :width, None]
 
 
 @dataclass
@@ -79,16 +91,25 @@ def render(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Ten
            near: float = 0.05, far: float = 10.0,
            outputs: Sequence[str] = ("features", "alpha", "depth", "median_depth", "normal",
                                      "distortion"),
-           backend: str = "auto") -> RenderOutput:
+           backend: str = "auto", keep_tiles: Optional[Tensor] = None) -> RenderOutput:
     """Render N 2DGS splats into C cameras (viewmats world-to-camera, OpenCV axes).
 
     Differentiable w.r.t. means, quats, log_scales, opacity_logits and features ([N,D] shared by
     all cameras or [C,N,D] per camera). Pixel centers are at (i + 0.5, j + 0.5). Quaternions (w, x,
     y, z) need not be unit: every backend normalizes them.
+
+    `keep_tiles` (bool [C, *tile_grid(width, height)]): only these TILE x TILE tiles are rendered;
+    every image output is 0 on the others and no gradient comes from them (radii are unchanged).
+    The cpu backend skips their work; the others render everything and mask it.
     """
     outputs = tuple(outputs)
     check_inputs(means, quats, log_scales, opacity_logits, features, viewmats, Ks, width, height,
                  near, far, outputs)
+    grid = (viewmats.shape[0], *tile_grid(width, height))
+    if keep_tiles is not None and (keep_tiles.dtype != torch.bool or tuple(keep_tiles.shape) != grid):
+        raise FlightReconError(f"render: keep_tiles must be a bool tensor of shape {grid} (cameras, tile rows, "
+                               f"tile columns of {TILE} px; render.tile_grid), got {keep_tiles.dtype} "
+                               f"{tuple(keep_tiles.shape)}")
     name = resolve_backend(backend)
     if name != "cuda" and any(t.is_cuda for t in (means, quats, log_scales, opacity_logits, features)):
         raise FlightReconError(f"render: backend {name!r} needs CPU tensors, got CUDA ones "
@@ -99,8 +120,16 @@ def render(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Ten
         from flightrecon.render.backend_cpu import render_cpu as fn
     else:
         from flightrecon.render.backend_cuda import render_cuda as fn
-    raw = fn(means, quats, log_scales, opacity_logits, features, viewmats, Ks, width, height,
-             near, far, outputs)
+    if name == "cpu":
+        raw = fn(means, quats, log_scales, opacity_logits, features, viewmats, Ks, width, height,
+                 near, far, outputs, keep_tiles)
+    else:
+        raw = fn(means, quats, log_scales, opacity_logits, features, viewmats, Ks, width, height,
+                 near, far, outputs)
+        if keep_tiles is not None:
+            keep = tile_pixels(keep_tiles.to(means.device), width, height)
+            raw = {k: (torch.where(keep, v, torch.zeros_like(v)) if k != "radii" and v is not None else v)
+                   for k, v in raw.items()}
     out = RenderOutput(radii=raw["radii"])
     for key in OUTPUTS:
         if key in outputs and key != "normal_world":

@@ -21,6 +21,7 @@ def _prep(t: Tensor, dtype: torch.dtype) -> Tensor:
     return t.to(dtype).contiguous()
 
 
+EVERY_TILE = torch.empty(0, 0, dtype=torch.uint8)  # the kernels' keep_tiles: render every tile
 CHUNK = 16384  # elements; below torch's parallel grain (32768), so one thread computes each chunk
 
 
@@ -100,17 +101,18 @@ class RasterizeCPU(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, means, U, V, n, opac, feats, viewmats, Ks, width, height, near, far,
-                normal, depth, dist, track):
+                normal, depth, dist, track, keep_tiles):
         dt = means.dtype
         args = [_prep(t, dt) for t in (means, U, V, n, opac, feats)]
         cams = (viewmats.detach().double().contiguous(), Ks.detach().double().contiguous())
         ext = load()
         # a single camera's projection and bins, kept for the backward (which would redo them)
         ctx.cache = ext.RenderCache() if track and any(ctx.needs_input_grad[:6]) else None
-        outs = ext.forward(*args, *cams, width, height, near, far, normal, depth, dist, track, ctx.cache)
+        outs = ext.forward(*args, *cams, width, height, near, far, normal, depth, dist, track, keep_tiles, ctx.cache)
         profiling.add_kernel("forward", ext.last_stats)
         ctx.save_for_backward(*args, *cams, *outs[:9])
         ctx.meta = (width, height, near, far, normal, depth, dist)
+        ctx.keep_tiles = keep_tiles
         ctx.mark_non_differentiable(*outs[7:])
         return tuple(outs)
 
@@ -121,16 +123,18 @@ class RasterizeCPU(torch.autograd.Function):
         grads = [g.contiguous() if g is not None else torch.zeros_like(o)
                  for g, o in zip((gF, gA, gN, gZ, gM, gM2, gMed), fwd[:7])]
         kept = fwd[:6] + fwd[7:9]  # the kernel re-derives everything else; median is not needed
-        g = load().backward(*args, *cams, *ctx.meta, kept, grads, False, ctx.cache)
+        g = load().backward(*args, *cams, *ctx.meta, kept, grads, False, ctx.keep_tiles, ctx.cache)
         profiling.add_kernel("backward", load().last_stats)
         ctx.cache = None  # free it now; a second backward (retain_graph) recomputes
-        return (*g, None, None, None, None, None, None, None, None, None, None)
+        return (*g, None, None, None, None, None, None, None, None, None, None, None)
 
 
 def render_cpu(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits: Tensor,
                features: Tensor, viewmats: Tensor, Ks: Tensor, width: int, height: int,
-               near: float, far: float, outputs: tuple[str, ...]) -> dict[str, Tensor]:
+               near: float, far: float, outputs: tuple[str, ...],
+               keep_tiles: Tensor | None = None) -> dict[str, Tensor]:
     U, V, n = splat_axes_cpu(quats, log_scales)
+    keep = EVERY_TILE if keep_tiles is None else keep_tiles.reshape(len(viewmats), -1).to(torch.uint8).contiguous()
     feats = features if features.dim() == 3 else features[None]
     want_normal = "normal" in outputs or "normal_world" in outputs
     want_depth = "depth" in outputs
@@ -141,7 +145,7 @@ def render_cpu(means: Tensor, quats: Tensor, log_scales: Tensor, opacity_logits:
         t.requires_grad for t in (means, quats, log_scales, opacity_logits, features, viewmats, Ks)))
     feat, alpha, normal, zsum, msum, m2sum, median, _, _, radii = RasterizeCPU.apply(
         means, U, V, n, opacity_cpu(opacity_logits), feats, viewmats, Ks, width, height,
-        float(near), float(far), want_normal, want_depth, want_dist, track)
+        float(near), float(far), want_normal, want_depth, want_dist, track, keep)
     alpha = alpha[..., None]
     out = {"features": feat, "alpha": alpha, "radii": radii}
     if track:

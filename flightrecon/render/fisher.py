@@ -21,7 +21,7 @@ from torch import Tensor
 
 from flightrecon.render.api import check_inputs
 from flightrecon.render.extension import load
-from flightrecon.render.backend_cpu import splat_axes_cpu
+from flightrecon.render.backend_cpu import EVERY_TILE, splat_axes_cpu
 
 NG = 11
 _IU = torch.triu_indices(NG, NG)
@@ -102,11 +102,11 @@ def render_fisher_diag(means: Tensor, quats: Tensor, log_scales: Tensor, opacity
         cams = (viewmats.double().contiguous(), Ks.double().contiguous())
         geo = [t.to(dt).contiguous() for t in (means, U, V, n, opac)]
         ext = load()
-        fwd = ext.forward(*geo, feats, *cams, width, height, near, far, False, False, False, True, None)
+        fwd = ext.forward(*geo, feats, *cams, width, height, near, far, False, False, False, True, EVERY_TILE, None)
         grads = [torch.ones_like(fwd[0])] + [torch.zeros_like(t) for t in fwd[1:7]]
         kept = fwd[:6] + fwd[7:9]
         G_sym, o2, w2 = ext.backward(*geo, feats, *cams, width, height, near, far,
-                                     False, False, False, kept, grads, True, None)
+                                     False, False, False, kept, grads, True, EVERY_TILE, None)
         C, N = G_sym.shape[:2]
         # G's diagonal holds sums of squares: a pair with any nonzero entry has a positive diagonal.
         flat = G_sym.reshape(C * N, G_sym.shape[-1])

@@ -55,8 +55,8 @@ def record(survey: str, frames: int, out: str) -> None:
             return optimize(frame, iters, count_observed=count_observed, **kw)
         trace: list[float] = []
 
-        def traced_loss(out, target):
-            value = loss(out, target)
+        def traced_loss(out, target, *rest):
+            value = loss(out, target, *rest)
             trace.append(float(value.detach()))
             return value
 
