@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -53,7 +54,7 @@ def record(survey: str, frames: int, out: str) -> None:
         rows.append({"frame": i, "new_before": before, "new_after": shares(f),
                      "earlier": shares(data[int(rng.integers(i + 1))])})
     with open(out, "w") as fh:
-        json.dump({"survey": survey, "provenance": provenance.stamp(), "rows": rows}, fh, indent=1)
+        json.dump({"survey": Path(survey).name, "provenance": provenance.stamp(), "rows": rows}, fh, indent=1)
 
 
 def summary(path: str) -> None:
