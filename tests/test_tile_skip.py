@@ -1,11 +1,10 @@
 """mapper.skip_tiles: which tiles an iteration renders, the loss over them, and the mapper's bookkeeping."""
 
-import copy
-
 import numpy as np
 import pytest
 import torch
 
+from flightrecon.checkpoint import load_checkpoint, save_checkpoint
 from flightrecon.config import MapperConfig
 from flightrecon.geometry import camera_pose
 from flightrecon.mapping.losses import frame_target, training_loss
@@ -108,14 +107,15 @@ def test_a_frames_iterations_leave_out_its_best_matched_tiles_and_render_all_eve
         assert (renders[i][1].numpy()[~pixels] == 0).all()  # the rasterizer drew nothing there
 
 
-def test_skipping_tiles_resumes_from_a_checkpoint_exactly(views):
+def test_skipping_tiles_resumes_from_a_checkpoint_exactly(views, tmp_path):
     K, vs = views
     settings = dict(k_new=5, k_replay=3, skip_tiles=0.5, skip_full_every=2)
     flown = _mapper(**settings)
     for v in vs[:2]:
         flown.add_frame(*v[:2], K, v[2])
     resumed = _mapper(**settings)
-    resumed.set_state(copy.deepcopy(flown.get_state()))
+    save_checkpoint(tmp_path / "checkpoint.npz", flown.get_state())  # through the file, as a resumed flight
+    resumed.set_state(load_checkpoint(tmp_path / "checkpoint.npz"))
     assert resumed.frame_iterations == flown.frame_iterations and resumed.frame_iterations[0] > 5
     for m in (flown, resumed):
         m.add_frame(*vs[2][:2], K, vs[2][2])

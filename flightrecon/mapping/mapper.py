@@ -249,12 +249,11 @@ class OnlineMapper:
         first_loss = None
         for it in range(iters):
             keep = self._tiles_to_render(index) if whole else None
+            keep_tiles = None if keep is None else torch.from_numpy(keep)[None].to(self.device)
             with profiling.stage("render"):
-                out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS,
-                                   None if keep is None else torch.from_numpy(keep)[None].to(self.device))
+                out = self._render(leaves, viewmat, Ks, W, H, TRAIN_OUTPUTS, keep_tiles)
             with profiling.stage("loss"):
-                pixels = None if keep is None else tile_pixels(torch.from_numpy(keep)[None], W, H)[0].to(self.device)
-                loss = self._loss(out, target, pixels)
+                loss = self._loss(out, target, None if keep is None else tile_pixels(keep_tiles, W, H)[0])
                 if whole and self.cfg.skip_tiles > 0:
                     self._note_tile_errors(index, out.features[0], target.rgb, keep)
             with profiling.stage("backward"):
